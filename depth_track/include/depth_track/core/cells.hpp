@@ -1,0 +1,65 @@
+#pragma once
+/// PCA cell reduction of a depth frame (thesis section 3.6) and the cell cloud it produces.
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/depth_image.hpp"
+
+namespace depth_track {
+
+/// One grid cell of a depth frame reduced by PCA. All geometry in the camera optical frame (C).
+struct Cell {
+  int gx = 0, gy = 0;             ///< grid column and row of the cell
+  int n_valid = 0;                ///< valid pixels that contributed
+  Eigen::Vector3f mean_C;         ///< mean vertex, metres
+  Eigen::Vector3f normal_C;       ///< unit normal (smallest eigenvector), facing the camera
+  Eigen::Matrix3f cov;            ///< covariance of the cell's vertices, m^2
+  Eigen::Vector3f eigenvalues;    ///< ascending, m^2
+  Eigen::Matrix3f eigenvectors;   ///< column i belongs to eigenvalues(i)
+  Eigen::Matrix3f cov_inv_sqrt;   ///< (cov + eps I)^(-1/2), for the Förstner–Moonen metric, 1/m
+  float surface_variation = 0.f;  ///< lambda0 / (lambda0 + lambda1 + lambda2), 0 for a plane
+  float det = 0.f;                ///< determinant of cov, m^6
+};
+
+/// Cell counts as in the thesis's table 5.1.
+struct ReductionStats {
+  int total = 0;               ///< cells in the grid
+  int retained = 0;            ///< cells kept
+  int pruned_invalid = 0;      ///< dropped for missing depth
+  int pruned_degenerate = 0;   ///< dropped because the points were collinear / degenerate
+};
+
+/// The reduced frame: kept cells plus a grid lookup (grid_w * grid_h entries, -1 = pruned).
+struct CellCloud {
+  int cell_size = 0;
+  int grid_w = 0, grid_h = 0;
+  std::vector<Cell> cells;
+  std::vector<int> grid_index;
+  ReductionStats stats;
+
+  /// Index into `cells` of grid cell (gx, gy), or -1 when pruned or outside the grid.
+  int cellAt(int gx, int gy) const {
+    if (gx < 0 || gy < 0 || gx >= grid_w || gy >= grid_h) return -1;
+    return grid_index[static_cast<std::size_t>(gy) * grid_w + gx];
+  }
+};
+
+/// Configuration of the PCA reduction.
+struct PcaConfig {
+  int cell_size = 5;                 ///< pixels per cell side; one of 2, 4, 5, 8, 10, 16, 32
+  double min_valid_fraction = 1.0;   ///< 1.0 = the thesis's rule: any missing pixel prunes the cell
+  double min_eigenvalue_m2 = 1e-8;   ///< regulariser added to the covariance for cov_inv_sqrt, m^2
+
+  /// Every problem for frames of width x height pixels (a size that does not tile is named).
+  std::vector<std::string> validate(int width, int height) const;
+};
+
+/// Reduces a depth frame to PCA cells. Throws DepthInputError for a frame whose size does not
+/// match the intrinsics or a config that does not validate. Thread-safe (no shared state);
+/// `threads` > 1 splits rows of cells over TBB workers.
+CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                        const PcaConfig& config, int threads = 1);
+
+}  // namespace depth_track

@@ -1,0 +1,40 @@
+#pragma once
+/// Rigid transforms: exponential map and small helpers (ROS-free core).
+/// Naming: T_A_B maps points expressed in frame B into frame A (p_A = T_A_B * p_B).
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace depth_track {
+
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+
+/// Exact SO(3) exponential of a rotation vector (radians). Thread-safe.
+inline Eigen::Matrix3d expSO3(const Eigen::Vector3d& omega) {
+  const double theta = omega.norm();
+  if (theta < 1e-12) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(theta, omega / theta).toRotationMatrix();
+}
+
+/// Increment xi = [omega (rad); v (m)] applied as an exact rigid transform: rotation exp(omega)
+/// and translation v (the "rotation then translate" parameterisation used by the linearised
+/// point-to-plane solve, where p' = R p + t with R ~ I + [omega]x).
+inline Eigen::Isometry3d expIncrement(const Vector6d& xi) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = expSO3(xi.head<3>());
+  T.translation() = xi.tail<3>();
+  return T;
+}
+
+/// Rotation angle of a transform in radians, in [0, pi].
+inline double rotationAngle(const Eigen::Isometry3d& T) {
+  return Eigen::AngleAxisd(T.rotation()).angle();
+}
+
+/// Re-orthonormalises the rotation part (guards long products of transforms against drift).
+inline Eigen::Isometry3d orthonormalized(const Eigen::Isometry3d& T) {
+  Eigen::Isometry3d out = T;
+  out.linear() = Eigen::Quaterniond(T.rotation()).normalized().toRotationMatrix();
+  return out;
+}
+
+}  // namespace depth_track
