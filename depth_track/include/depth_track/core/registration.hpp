@@ -1,0 +1,83 @@
+#pragma once
+/// One-to-one cell pair matching and rigid registration of cell clouds: point-to-point (SVD),
+/// point-to-plane (6x6 normal equations) and Cell Search (point-to-plane with pairs gated by the
+/// Förstner–Moonen covariance metric). ROS-free core.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/cells.hpp"
+
+namespace depth_track {
+
+enum class RegistrationMethod { kPointToPoint, kPointToPlane, kCellSearch };
+
+/// "p2p" | "p2l" | "cell_search" -> method; throws std::invalid_argument naming the bad value.
+RegistrationMethod parseRegistrationMethod(const std::string& name);
+std::string toString(RegistrationMethod method);
+
+/// Pair-matching thresholds (thesis §3.8) and the search window.
+struct MatchConfig {
+  double dist_min_m = 0.05;      ///< max distance between paired mean vertices, metres (DistMin)
+  double cos_min = 0.99;         ///< min cosine between paired normals (CosMin); cos(8.1 deg)
+  double normal_weight_m = 0.05; ///< metres per unit of normal difference in the 6-vector distance
+  int search_radius_cells = 2;   ///< image-grid window (cells) around the predicted position
+};
+
+/// Registration configuration (thesis fig. 5.1 names in brackets).
+struct RegistrationConfig {
+  RegistrationMethod method = RegistrationMethod::kPointToPlane;  ///< (RegMethod)
+  MatchConfig match;
+  double fm_thresh = 1.0;           ///< Förstner–Moonen gate for Cell Search (FMThresh)
+  int max_iterations = 30;          ///< ICP iterations (re-matching after each update)
+  double tolerance_m = 1e-5;        ///< stop when an update moves points less than this, metres
+  double tolerance_rad = 1e-5;      ///< ... and rotates less than this, radians
+  bool robust = true;               ///< Huber weighting of residuals
+  double huber_delta_m = 0.01;      ///< Huber threshold, metres
+  bool overlap_mask = true;         ///< drop cells predicted to fall outside the other view
+  int min_matches = 30;             ///< fewer pairs than this = failure
+
+  /// Every problem at once (empty = valid).
+  std::vector<std::string> validate() const;
+};
+
+/// One matching pass: index pairs (reference cell, current cell) and counters.
+struct MatchResult {
+  std::vector<std::pair<int, int>> pairs;  ///< (index into reference.cells, index into current.cells)
+  int candidates = 0;          ///< reference cells that had at least one candidate within gates
+  int duplicates_broken = 0;   ///< candidates lost to a better claim on the same current cell
+  int fm_rejected = 0;         ///< pairs removed by the Förstner–Moonen gate (Cell Search)
+};
+
+/// Result of registering `current` onto `reference`.
+struct RegistrationResult {
+  Eigen::Isometry3d T_ref_cur = Eigen::Isometry3d::Identity();  ///< maps current-frame points into the reference frame
+  bool converged = false;
+  int iterations = 0;
+  int candidates = 0;
+  int matches = 0;             ///< pairs used in the last iteration
+  int fm_matches = 0;          ///< pairs that passed the FM gate (Cell Search), else = matches
+  int duplicates_broken = 0;
+  double error_rms_m = 0.0;    ///< residual RMS of the last iteration, metres
+  std::string failure;         ///< empty when the registration is usable
+};
+
+/// Förstner–Moonen distance between two cells' covariances: sum of log^2 of the eigenvalues of
+/// A^{-1/2} B A^{-1/2}. 0 for identical covariances; symmetric. Thread-safe.
+double forstnerMoonen(const Cell& a, const Cell& b);
+
+/// Pairs reference cells with current cells one-to-one, given T_ref_cur. Thread-safe.
+MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
+                       const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_ref_cur,
+                       const RegistrationConfig& config);
+
+/// Iterative registration of `current` onto `reference` from an initial guess T_ref_cur_guess.
+/// Thread-safe (no shared state).
+RegistrationResult registerCells(const CellCloud& reference, const CellCloud& current,
+                                 const PinholeIntrinsics& intrinsics,
+                                 const Eigen::Isometry3d& T_ref_cur_guess,
+                                 const RegistrationConfig& config);
+
+}  // namespace depth_track
