@@ -30,8 +30,8 @@ DepthImage depthFromRaw(const void* data, int width, int height, std::size_t ste
   const std::size_t bpp = encoding == DepthEncoding::kU16 ? 2 : 4;
   if (step_bytes < bpp * static_cast<std::size_t>(width)) {
     std::ostringstream s;
-    s << "depth row step " << step_bytes << " bytes is smaller than width " << width << " x "
-      << bpp << " bytes";
+    s << "depth row step " << step_bytes << " bytes is smaller than width " << width << " x " << bpp
+      << " bytes";
     throw DepthInputError(s.str());
   }
   if (encoding == DepthEncoding::kU16 && !(std::isfinite(depth_scale_m) && depth_scale_m > 0.0))
@@ -64,8 +64,9 @@ DepthImage depthFromRaw(const void* data, int width, int height, std::size_t ste
 void checkFrameSize(const DepthImage& depth, const PinholeIntrinsics& intrinsics) {
   if (depth.width != intrinsics.width || depth.height != intrinsics.height) {
     std::ostringstream s;
-    s << "depth frame is " << depth.width << "x" << depth.height << " px but the camera intrinsics are for "
-      << intrinsics.width << "x" << intrinsics.height << " px";
+    s << "depth frame is " << depth.width << "x" << depth.height
+      << " px but the camera intrinsics are for " << intrinsics.width << "x" << intrinsics.height
+      << " px";
     throw DepthInputError(s.str());
   }
   if (depth.data.size() != static_cast<std::size_t>(depth.width) * depth.height)

@@ -9,8 +9,8 @@ namespace depth_track {
 /// Pinhole intrinsics in pixels. Pixel (u, v) = (column, row), origin at the centre of the top-left
 /// pixel; the optical frame is x right, y down, z forward (REP 103 optical convention).
 struct PinholeIntrinsics {
-  int width = 640;   ///< image width in pixels
-  int height = 480;  ///< image height in pixels
+  int width = 640;                                ///< image width in pixels
+  int height = 480;                               ///< image height in pixels
   double fx = 0.0, fy = 0.0, cx = 0.0, cy = 0.0;  ///< focal lengths and principal point, pixels
 
   /// The thesis's isotropic camera: one projection constant k for both axes, centre at (W/2, H/2).

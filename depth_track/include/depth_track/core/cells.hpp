@@ -25,10 +25,10 @@ struct Cell {
 
 /// Cell counts as in the thesis's table 5.1.
 struct ReductionStats {
-  int total = 0;               ///< cells in the grid
-  int retained = 0;            ///< cells kept
-  int pruned_invalid = 0;      ///< dropped for missing depth
-  int pruned_degenerate = 0;   ///< dropped because the points were collinear / degenerate
+  int total = 0;              ///< cells in the grid
+  int retained = 0;           ///< cells kept
+  int pruned_invalid = 0;     ///< dropped for missing depth
+  int pruned_degenerate = 0;  ///< dropped because the points were collinear / degenerate
 };
 
 /// The reduced frame: kept cells plus a grid lookup (grid_w * grid_h entries, -1 = pruned).
@@ -48,9 +48,9 @@ struct CellCloud {
 
 /// Configuration of the PCA reduction.
 struct PcaConfig {
-  int cell_size = 5;                 ///< pixels per cell side; one of 2, 4, 5, 8, 10, 16, 32
-  double min_valid_fraction = 1.0;   ///< 1.0 = the thesis's rule: any missing pixel prunes the cell
-  double min_eigenvalue_m2 = 1e-8;   ///< regulariser added to the covariance for cov_inv_sqrt, m^2
+  int cell_size = 5;                ///< pixels per cell side; one of 2, 4, 5, 8, 10, 16, 32
+  double min_valid_fraction = 1.0;  ///< 1.0 = the thesis's rule: any missing pixel prunes the cell
+  double min_eigenvalue_m2 = 1e-8;  ///< regulariser added to the covariance for cov_inv_sqrt, m^2
 
   /// Every problem for frames of width x height pixels (a size that does not tile is named).
   std::vector<std::string> validate(int width, int height) const;

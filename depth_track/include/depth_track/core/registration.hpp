@@ -20,24 +20,25 @@ std::string toString(RegistrationMethod method);
 
 /// Pair-matching thresholds (thesis §3.8) and the search window.
 struct MatchConfig {
-  double dist_min_m = 0.05;      ///< max distance between paired mean vertices, metres (DistMin)
-  double cos_min = 0.99;         ///< min cosine between paired normals (CosMin); cos(8.1 deg)
-  double normal_weight_m = 0.05; ///< metres per unit of normal difference in the 6-vector distance
-  int search_radius_cells = 2;   ///< image-grid window (cells) around the predicted position
+  double dist_min_m = 0.05;       ///< max distance between paired mean vertices, metres (DistMin)
+  double cos_min = 0.99;          ///< min cosine between paired normals (CosMin); cos(8.1 deg)
+  double normal_weight_m = 0.05;  ///< metres per unit of normal difference in the 6-vector distance
+  int search_radius_cells = 2;    ///< image-grid window (cells) around the predicted position
 };
 
 /// Registration configuration (thesis fig. 5.1 names in brackets).
 struct RegistrationConfig {
   RegistrationMethod method = RegistrationMethod::kPointToPlane;  ///< (RegMethod)
   MatchConfig match;
-  double fm_thresh = 1.0;           ///< Förstner–Moonen gate for Cell Search (FMThresh)
-  int max_iterations = 30;          ///< ICP iterations (re-matching after each update)
-  double tolerance_m = 1e-5;        ///< stop when an update moves points less than this, metres
-  double tolerance_rad = 1e-5;      ///< ... and rotates less than this, radians
-  bool robust = true;               ///< Huber weighting of residuals
-  double huber_delta_m = 0.01;      ///< Huber threshold, metres
-  bool overlap_mask = true;         ///< drop cells predicted to fall outside the other view
-  int min_matches = 30;             ///< fewer pairs than this = failure
+  double fm_thresh = 1.0;       ///< Förstner–Moonen gate for Cell Search (FMThresh)
+  double fm_eps_m2 = 1e-8;      ///< covariance regulariser, = PcaConfig::min_eigenvalue_m2
+  int max_iterations = 30;      ///< ICP iterations (re-matching after each update)
+  double tolerance_m = 1e-5;    ///< stop when an update moves points less than this, metres
+  double tolerance_rad = 1e-5;  ///< ... and rotates less than this, radians
+  bool robust = true;           ///< Huber weighting of residuals
+  double huber_delta_m = 0.01;  ///< Huber threshold, metres
+  bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
+  int min_matches = 30;         ///< fewer pairs than this = failure
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -45,28 +46,34 @@ struct RegistrationConfig {
 
 /// One matching pass: index pairs (reference cell, current cell) and counters.
 struct MatchResult {
-  std::vector<std::pair<int, int>> pairs;  ///< (index into reference.cells, index into current.cells)
-  int candidates = 0;          ///< reference cells that had at least one candidate within gates
-  int duplicates_broken = 0;   ///< candidates lost to a better claim on the same current cell
-  int fm_rejected = 0;         ///< pairs removed by the Förstner–Moonen gate (Cell Search)
+  std::vector<std::pair<int, int>>
+      pairs;                  ///< (index into reference.cells, index into current.cells)
+  int candidates = 0;         ///< reference cells that had at least one candidate within gates
+  int duplicates_broken = 0;  ///< candidates lost to a better claim on the same current cell
+  int fm_rejected = 0;        ///< pairs removed by the Förstner–Moonen gate (Cell Search)
 };
 
 /// Result of registering `current` onto `reference`.
 struct RegistrationResult {
-  Eigen::Isometry3d T_ref_cur = Eigen::Isometry3d::Identity();  ///< maps current-frame points into the reference frame
+  Eigen::Isometry3d T_ref_cur =
+      Eigen::Isometry3d::Identity();  ///< maps current-frame points into the reference frame
   bool converged = false;
   int iterations = 0;
   int candidates = 0;
-  int matches = 0;             ///< pairs used in the last iteration
-  int fm_matches = 0;          ///< pairs that passed the FM gate (Cell Search), else = matches
+  int matches = 0;     ///< pairs used in the last iteration
+  int fm_matches = 0;  ///< pairs that passed the FM gate (Cell Search), else = matches
   int duplicates_broken = 0;
-  double error_rms_m = 0.0;    ///< residual RMS of the last iteration, metres
-  std::string failure;         ///< empty when the registration is usable
+  double error_rms_m = 0.0;  ///< residual RMS of the last iteration, metres
+  std::string failure;       ///< empty when the registration is usable
 };
 
-/// Förstner–Moonen distance between two cells' covariances: sum of log^2 of the eigenvalues of
-/// A^{-1/2} B A^{-1/2}. 0 for identical covariances; symmetric. Thread-safe.
-double forstnerMoonen(const Cell& a, const Cell& b);
+/// Förstner–Moonen distance between two cells' covariances (same frame): sum of log^2 of the
+/// eigenvalues of A^{-1/2} B A^{-1/2}, both regularised by eps_m2 * I as in the PCA reduction
+/// (PcaConfig::min_eigenvalue_m2). 0 for identical covariances; symmetric. Thread-safe.
+double forstnerMoonen(const Cell& a, const Cell& b, double eps_m2 = PcaConfig{}.min_eigenvalue_m2);
+
+/// The same metric from A's regularised inverse square root and B's regularised covariance.
+double forstnerMoonenFromMatrices(const Eigen::Matrix3d& a_inv_sqrt, const Eigen::Matrix3d& b_reg);
 
 /// Pairs reference cells with current cells one-to-one, given T_ref_cur. Thread-safe.
 MatchResult matchCells(const CellCloud& reference, const CellCloud& current,

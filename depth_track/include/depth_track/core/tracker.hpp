@@ -17,12 +17,12 @@ namespace depth_track {
 struct TrackerConfig {
   PcaConfig pca;
   RegistrationConfig registration;
-  int icp_frames = 1;                ///< frames between reference refreshes (ICPFrames)
-  double max_error_rms_m = 0.02;     ///< larger residual = failed frame, metres
-  double max_jump_m = 0.15;          ///< larger correction of the prediction = failed frame, metres
-  double max_jump_deg = 15.0;        ///< ... degrees
-  bool constant_velocity = true;     ///< predict with the last motion (else: no motion)
-  int threads = 1;                   ///< TBB workers for the reduction
+  int icp_frames = 1;             ///< frames between reference refreshes (ICPFrames)
+  double max_error_rms_m = 0.02;  ///< larger residual = failed frame, metres
+  double max_jump_m = 0.15;       ///< larger correction of the prediction = failed frame, metres
+  double max_jump_deg = 15.0;     ///< ... degrees
+  bool constant_velocity = true;  ///< predict with the last motion (else: no motion)
+  int threads = 1;                ///< TBB workers for the reduction
 
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
 };
@@ -30,8 +30,8 @@ struct TrackerConfig {
 /// Per-frame outcome.
 struct FrameStatus {
   double stamp_s = 0.0;
-  bool tracked = false;       ///< false = pose is the prediction (frame flagged)
-  std::string failure;        ///< reason when !tracked
+  bool tracked = false;  ///< false = pose is the prediction (frame flagged)
+  std::string failure;   ///< reason when !tracked
   int cells = 0;
   int candidates = 0, matches = 0, fm_matches = 0, duplicates_broken = 0, iterations = 0;
   double error_rms_m = 0.0;
@@ -66,8 +66,8 @@ class Tracker {
   PinholeIntrinsics intrinsics_;
   TrackerConfig config_;
   Eigen::Isometry3d T_W_C_;
-  Eigen::Isometry3d T_W_Cref_;                 ///< pose of the reference frame
-  Eigen::Isometry3d velocity_T_Cprev_Ccur_;    ///< last frame-to-frame motion
+  Eigen::Isometry3d T_W_Cref_;               ///< pose of the reference frame
+  Eigen::Isometry3d velocity_T_Cprev_Ccur_;  ///< last frame-to-frame motion
   CellCloud reference_;
   CellCloud last_cells_;
   bool have_reference_ = false;

@@ -1,0 +1,335 @@
+#include "depth_track/core/registration.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "depth_track/core/se3.hpp"
+
+namespace depth_track {
+
+RegistrationMethod parseRegistrationMethod(const std::string& name) {
+  if (name == "p2p") return RegistrationMethod::kPointToPoint;
+  if (name == "p2l") return RegistrationMethod::kPointToPlane;
+  if (name == "cell_search") return RegistrationMethod::kCellSearch;
+  throw std::invalid_argument("unknown registration method '" + name +
+                              "' (expected p2p, p2l or cell_search)");
+}
+
+std::string toString(RegistrationMethod method) {
+  switch (method) {
+    case RegistrationMethod::kPointToPoint:
+      return "p2p";
+    case RegistrationMethod::kPointToPlane:
+      return "p2l";
+    case RegistrationMethod::kCellSearch:
+      return "cell_search";
+  }
+  return "?";
+}
+
+std::vector<std::string> RegistrationConfig::validate() const {
+  std::vector<std::string> p;
+  if (!(match.dist_min_m > 0.0)) p.push_back("dist_min_m must be > 0 m");
+  if (!(match.cos_min > -1.0 && match.cos_min <= 1.0)) p.push_back("cos_min must lie in (-1, 1]");
+  if (!(match.normal_weight_m >= 0.0)) p.push_back("normal_weight_m must be >= 0 m");
+  if (match.search_radius_cells < 0 || match.search_radius_cells > 16)
+    p.push_back("search_radius_cells must lie in [0, 16]");
+  if (!(fm_thresh > 0.0)) p.push_back("fm_thresh must be > 0");
+  if (max_iterations < 1 || max_iterations > 1000)
+    p.push_back("max_iterations must lie in [1, 1000]");
+  if (!(tolerance_m >= 0.0)) p.push_back("tolerance_m must be >= 0 m");
+  if (!(tolerance_rad >= 0.0)) p.push_back("tolerance_rad must be >= 0 rad");
+  if (!(huber_delta_m > 0.0)) p.push_back("huber_delta_m must be > 0 m");
+  if (min_matches < 6) p.push_back("min_matches must be >= 6 (six unknowns)");
+  return p;
+}
+
+double forstnerMoonenFromMatrices(const Eigen::Matrix3d& a_inv_sqrt, const Eigen::Matrix3d& b_reg) {
+  const Eigen::Matrix3d d = a_inv_sqrt * b_reg * a_inv_sqrt;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+  es.computeDirect(0.5 * (d + d.transpose()), Eigen::EigenvaluesOnly);
+  double fm = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    const double lg = std::log(std::max(es.eigenvalues()(i), 1e-300));
+    fm += lg * lg;
+  }
+  return fm;
+}
+
+double forstnerMoonen(const Cell& a, const Cell& b, double eps_m2) {
+  const Eigen::Matrix3d b_reg = b.cov.cast<double>() + eps_m2 * Eigen::Matrix3d::Identity();
+  return forstnerMoonenFromMatrices(a.cov_inv_sqrt.cast<double>(), b_reg);
+}
+
+namespace {
+
+// Current cells moved into the reference frame by the running estimate.
+struct Moved {
+  std::vector<Eigen::Vector3f> p, n;
+};
+
+void moveCells(const CellCloud& current, const Eigen::Isometry3d& T_ref_cur, Moved* out) {
+  const Eigen::Matrix3f R = T_ref_cur.rotation().cast<float>();
+  const Eigen::Vector3f t = T_ref_cur.translation().cast<float>();
+  const std::size_t n = current.cells.size();
+  out->p.resize(n);
+  out->n.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    out->p[i] = R * current.cells[i].mean_C + t;
+    out->n[i] = R * current.cells[i].normal_C;
+  }
+}
+
+// Projective association in the reference grid, then one-to-one resolution: every reference
+// cell keeps only its cheapest claimant (ties go to the lower current index), so the result does
+// not depend on evaluation order.
+MatchResult associate(const CellCloud& reference, const CellCloud& current, const Moved& moved,
+                      const PinholeIntrinsics& K, const Eigen::Matrix3d& R_ref_cur,
+                      const RegistrationConfig& config, int radius) {
+  MatchResult result;
+  const std::size_t n_cur = current.cells.size();
+  std::vector<int> best_ref(n_cur, -1);
+  std::vector<float> best_cost(n_cur, std::numeric_limits<float>::max());
+  const float dist_max = static_cast<float>(config.match.dist_min_m);
+  const float dist_max2 = dist_max * dist_max;
+  const float cos_min = static_cast<float>(config.match.cos_min);
+  const float w2 = static_cast<float>(config.match.normal_weight_m * config.match.normal_weight_m);
+  const float cs = static_cast<float>(reference.cell_size);
+  // Overlap mask: a cell predicted within one cell of the border of the reference view may have
+  // its true partner outside it, so it is not matched at all.
+  const float margin = config.overlap_mask ? cs : 0.0f;
+
+  for (std::size_t c = 0; c < n_cur; ++c) {
+    const Eigen::Vector3f& p = moved.p[c];
+    float u, v;
+    if (!K.project(p, &u, &v) || !K.inImage(u, v, margin)) continue;
+    const int gx = static_cast<int>((u + 0.5f) / cs);
+    const int gy = static_cast<int>((v + 0.5f) / cs);
+    const Eigen::Vector3f& n = moved.n[c];
+    int best = -1;
+    float best_c = std::numeric_limits<float>::max();
+    for (int y = gy - radius; y <= gy + radius; ++y) {
+      for (int x = gx - radius; x <= gx + radius; ++x) {
+        const int r = reference.cellAt(x, y);
+        if (r < 0) continue;
+        const Cell& rc = reference.cells[r];
+        const float d2 = (p - rc.mean_C).squaredNorm();
+        if (d2 > dist_max2) continue;
+        const float cosang = n.dot(rc.normal_C);
+        if (cosang < cos_min) continue;
+        const float cost = d2 + w2 * (n - rc.normal_C).squaredNorm();
+        if (cost < best_c) {
+          best_c = cost;
+          best = r;
+        }
+      }
+    }
+    if (best >= 0) {
+      best_ref[c] = best;
+      best_cost[c] = best_c;
+      ++result.candidates;
+    }
+  }
+
+  std::vector<int> claim(reference.cells.size(), -1);
+  for (std::size_t c = 0; c < n_cur; ++c) {
+    const int r = best_ref[c];
+    if (r < 0) continue;
+    const int holder = claim[r];
+    if (holder < 0) {
+      claim[r] = static_cast<int>(c);
+    } else {
+      ++result.duplicates_broken;
+      if (best_cost[c] < best_cost[holder]) claim[r] = static_cast<int>(c);
+    }
+  }
+
+  const bool gate_fm = config.method == RegistrationMethod::kCellSearch;
+  const Eigen::Matrix3d eps = config.fm_eps_m2 * Eigen::Matrix3d::Identity();
+  result.pairs.reserve(reference.cells.size());
+  for (std::size_t r = 0; r < claim.size(); ++r) {
+    const int c = claim[r];
+    if (c < 0) continue;
+    if (gate_fm) {
+      const Eigen::Matrix3d b_reg =
+          R_ref_cur * current.cells[c].cov.cast<double>() * R_ref_cur.transpose() + eps;
+      if (forstnerMoonenFromMatrices(reference.cells[r].cov_inv_sqrt.cast<double>(), b_reg) >
+          config.fm_thresh) {
+        ++result.fm_rejected;
+        continue;
+      }
+    }
+    result.pairs.emplace_back(static_cast<int>(r), c);
+  }
+  return result;
+}
+
+double huberWeight(double residual, const RegistrationConfig& config) {
+  if (!config.robust) return 1.0;
+  const double a = std::abs(residual);
+  return a <= config.huber_delta_m ? 1.0 : config.huber_delta_m / a;
+}
+
+// One point-to-plane Gauss-Newton step: minimises sum w (n_r . (p - q_r))^2 over the increment
+// [omega; v] with p' = p + omega x p + v. Returns false when the system is singular.
+bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const MatchResult& m,
+                       const RegistrationConfig& config, Vector6d* xi, double* rms) {
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  Vector6d g = Vector6d::Zero();
+  double sq = 0.0;
+  for (const auto& [r, c] : m.pairs) {
+    const Eigen::Vector3d q = reference.cells[r].mean_C.cast<double>();
+    const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
+    const Eigen::Vector3d p = moved.p[c].cast<double>();
+    const double e = n.dot(p - q);
+    sq += e * e;
+    Vector6d J;
+    J.head<3>() = p.cross(n);
+    J.tail<3>() = n;
+    const double w = huberWeight(e, config);
+    H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
+    g += w * e * J;
+  }
+  *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
+  Eigen::Matrix<double, 6, 6> Hs = H.selfadjointView<Eigen::Upper>();
+  // A whisper of damping keeps directions the scene cannot observe (a bare wall) at zero motion.
+  Hs.diagonal().array() += 1e-9 * Hs.trace() / 6.0 + 1e-12;
+  Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(Hs);
+  if (ldlt.info() != Eigen::Success) return false;
+  *xi = ldlt.solve(-g);
+  return xi->allFinite();
+}
+
+// Weighted point-to-point (Kabsch/Umeyama without scale) in closed form. Returns the full
+// transform that moves the current points onto their partners, relative to their present place.
+bool solvePointToPoint(const CellCloud& reference, const Moved& moved, const MatchResult& m,
+                       const RegistrationConfig& config, Eigen::Isometry3d* delta, double* rms) {
+  double wsum = 0.0, sq = 0.0;
+  Eigen::Vector3d mp = Eigen::Vector3d::Zero(), mq = Eigen::Vector3d::Zero();
+  std::vector<double> w(m.pairs.size());
+  for (std::size_t i = 0; i < m.pairs.size(); ++i) {
+    const auto [r, c] = m.pairs[i];
+    const Eigen::Vector3d e = moved.p[c].cast<double>() - reference.cells[r].mean_C.cast<double>();
+    sq += e.squaredNorm();
+    w[i] = huberWeight(e.norm(), config);
+    wsum += w[i];
+    mp += w[i] * moved.p[c].cast<double>();
+    mq += w[i] * reference.cells[r].mean_C.cast<double>();
+  }
+  *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
+  if (!(wsum > 0.0)) return false;
+  mp /= wsum;
+  mq /= wsum;
+  Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+  for (std::size_t i = 0; i < m.pairs.size(); ++i) {
+    const auto [r, c] = m.pairs[i];
+    S += w[i] * (moved.p[c].cast<double>() - mp) *
+         (reference.cells[r].mean_C.cast<double>() - mq).transpose();
+  }
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(S, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  // Reflection check: a negative determinant would mirror the cloud instead of rotating it.
+  if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0.0) D(2, 2) = -1.0;
+  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
+  delta->setIdentity();
+  delta->linear() = R;
+  delta->translation() = mq - R * mp;
+  return delta->matrix().allFinite();
+}
+
+}  // namespace
+
+MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
+                       const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_ref_cur,
+                       const RegistrationConfig& config) {
+  Moved moved;
+  moveCells(current, T_ref_cur, &moved);
+  return associate(reference, current, moved, intrinsics, T_ref_cur.rotation(), config,
+                   config.match.search_radius_cells);
+}
+
+RegistrationResult registerCells(const CellCloud& reference, const CellCloud& current,
+                                 const PinholeIntrinsics& intrinsics,
+                                 const Eigen::Isometry3d& T_ref_cur_guess,
+                                 const RegistrationConfig& config) {
+  RegistrationResult result;
+  result.T_ref_cur = T_ref_cur_guess;
+  const auto problems = config.validate();
+  if (!problems.empty()) throw std::invalid_argument("registration: " + joinProblems(problems));
+  if (reference.cell_size != current.cell_size || reference.grid_w != current.grid_w ||
+      reference.grid_h != current.grid_h)
+    throw std::invalid_argument("registration: reference and current cell grids differ");
+
+  Eigen::Isometry3d T = T_ref_cur_guess;
+  Eigen::Isometry3d T_best = T;
+  double best_rms = std::numeric_limits<double>::infinity();
+  bool error_rose = false;
+  Moved moved;
+  for (int it = 0; it < config.max_iterations; ++it) {
+    moveCells(current, T, &moved);
+    // The first pass covers the prediction's error; later passes follow a re-projected estimate.
+    const int radius =
+        it == 0 ? config.match.search_radius_cells : std::min(1, config.match.search_radius_cells);
+    const MatchResult m =
+        associate(reference, current, moved, intrinsics, T.rotation(), config, radius);
+    result.iterations = it + 1;
+    result.candidates = m.candidates;
+    result.duplicates_broken = m.duplicates_broken;
+    result.matches = static_cast<int>(m.pairs.size()) + m.fm_rejected;
+    result.fm_matches = static_cast<int>(m.pairs.size());
+    if (static_cast<int>(m.pairs.size()) < config.min_matches) {
+      std::ostringstream s;
+      s << "too few matches: " << m.pairs.size() << " < " << config.min_matches;
+      result.failure = s.str();
+      result.T_ref_cur = std::isfinite(best_rms) ? T_best : T_ref_cur_guess;
+      return result;
+    }
+    double rms = 0.0;
+    Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+    bool ok;
+    if (config.method == RegistrationMethod::kPointToPoint) {
+      ok = solvePointToPoint(reference, moved, m, config, &delta, &rms);
+    } else {
+      Vector6d xi;
+      ok = solvePointToPlane(reference, moved, m, config, &xi, &rms);
+      if (ok) delta = expIncrement(xi);
+    }
+    if (!ok) {
+      result.failure = "singular registration system";
+      result.T_ref_cur = std::isfinite(best_rms) ? T_best : T_ref_cur_guess;
+      return result;
+    }
+    // rms is the error at T, before this update: stop once it no longer decreases.
+    if (it >= 2 && rms > best_rms * (1.0 + 1e-3)) {
+      error_rose = true;
+      break;
+    }
+    if (rms <= best_rms) {
+      best_rms = rms;
+      T_best = T;
+    }
+    result.error_rms_m = rms;
+    T = orthonormalized(delta * T);
+    if (rotationAngle(delta) < config.tolerance_rad &&
+        delta.translation().norm() < config.tolerance_m) {
+      result.converged = true;
+      break;
+    }
+  }
+  if (error_rose) {
+    result.converged = true;
+    result.T_ref_cur = T_best;
+    result.error_rms_m = best_rms;
+  } else {
+    result.T_ref_cur = T;
+  }
+  return result;
+}
+
+}  // namespace depth_track
