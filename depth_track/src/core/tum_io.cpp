@@ -1,0 +1,372 @@
+#include "depth_track/core/tum_io.hpp"
+
+#include <png.h>
+
+#include <sys/stat.h>
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <csetjmp>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iomanip>
+#include <memory>
+#include <numeric>
+#include <sstream>
+
+namespace depth_track {
+namespace {
+
+// ---- libpng plumbing ----------------------------------------------------------------------------
+// libpng reports errors by longjmp. Every C++ object of the functions below is constructed before
+// setjmp, and the message is copied into a plain buffer, so the jump skips no destructor.
+struct PngErrorBuffer {
+  char message[256] = {0};
+};
+
+void pngError(png_structp png, png_const_charp msg) {
+  auto* buf = static_cast<PngErrorBuffer*>(png_get_error_ptr(png));
+  std::snprintf(buf->message, sizeof(buf->message), "%s", msg);
+  png_longjmp(png, 1);
+}
+
+void pngWarning(png_structp, png_const_charp) {}  // warnings (e.g. unknown chunks) are harmless
+
+struct FileCloser {
+  void operator()(std::FILE* f) const {
+    if (f != nullptr) std::fclose(f);
+  }
+};
+using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
+
+const char* colourTypeName(int colour_type) {
+  switch (colour_type) {
+    case PNG_COLOR_TYPE_GRAY:
+      return "grayscale";
+    case PNG_COLOR_TYPE_GRAY_ALPHA:
+      return "grayscale+alpha";
+    case PNG_COLOR_TYPE_RGB:
+      return "RGB";
+    case PNG_COLOR_TYPE_RGB_ALPHA:
+      return "RGBA";
+    case PNG_COLOR_TYPE_PALETTE:
+      return "palette";
+    default:
+      return "unknown colour type";
+  }
+}
+
+bool hostIsLittleEndian() {
+  const std::uint16_t one = 1;
+  unsigned char first;
+  std::memcpy(&first, &one, 1);
+  return first == 1;
+}
+
+// ---- text parsing
+// ---------------------------------------------------------------------------------
+std::string where(const std::string& path, int line) {
+  return path + ":" + std::to_string(line) + ": ";
+}
+
+// Splits on whitespace and commas.
+std::vector<std::string> tokens(const std::string& line) {
+  std::vector<std::string> out;
+  std::string cur;
+  for (char c : line) {
+    if (c == ' ' || c == '\t' || c == ',' || c == '\r' || c == '\n') {
+      if (!cur.empty()) out.push_back(cur);
+      cur.clear();
+    } else {
+      cur.push_back(c);
+    }
+  }
+  if (!cur.empty()) out.push_back(cur);
+  return out;
+}
+
+bool isCommentOrBlank(const std::string& line) {
+  const auto first = line.find_first_not_of(" \t\r\n");
+  return first == std::string::npos || line[first] == '#';
+}
+
+// Parses a whole token as a finite double.
+bool parseFinite(const std::string& token, double* value) {
+  errno = 0;
+  char* end = nullptr;
+  *value = std::strtod(token.c_str(), &end);
+  return end != token.c_str() && *end == '\0' && errno != ERANGE && std::isfinite(*value);
+}
+
+bool fileExists(const std::string& path) {
+  struct stat st;
+  return ::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode);
+}
+
+std::string folderOf(const std::string& path) {
+  const auto slash = path.find_last_of('/');
+  if (slash == std::string::npos) return ".";
+  if (slash == 0) return "/";
+  return path.substr(0, slash);
+}
+
+std::ifstream openText(const std::string& path, const char* what) {
+  std::ifstream in(path);
+  if (!in)
+    throw FileFormatError(path + ": cannot open " + what + " (" + std::strerror(errno) + ")");
+  return in;
+}
+
+}  // namespace
+
+std::vector<std::uint16_t> readPng16(const std::string& path, int* width, int* height) {
+  FilePtr file(std::fopen(path.c_str(), "rb"));
+  if (!file) throw FileFormatError(path + ": cannot open PNG (" + std::strerror(errno) + ")");
+  unsigned char signature[8];
+  if (std::fread(signature, 1, 8, file.get()) != 8 || png_sig_cmp(signature, 0, 8) != 0)
+    throw FileFormatError(path + ": not a PNG file (bad signature)");
+
+  PngErrorBuffer err;
+  std::vector<std::uint16_t> pixels;
+  std::vector<png_bytep> rows;
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &err, pngError, pngWarning);
+  if (png == nullptr) throw FileFormatError(path + ": cannot create a PNG reader");
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr) {
+    png_destroy_read_struct(&png, nullptr, nullptr);
+    throw FileFormatError(path + ": cannot create a PNG reader");
+  }
+  // 0 = ok, 1 = libpng error, 2 = wrong pixel format (details in `found`).
+  volatile int status = 0;
+  char found[128] = {0};
+  png_uint_32 w = 0, h = 0;
+  if (setjmp(png_jmpbuf(png))) {
+    status = 1;
+  } else {
+    png_init_io(png, file.get());
+    png_set_sig_bytes(png, 8);
+    png_read_info(png, info);
+    int bit_depth = 0, colour_type = 0;
+    png_get_IHDR(png, info, &w, &h, &bit_depth, &colour_type, nullptr, nullptr, nullptr);
+    if (bit_depth != 16 || colour_type != PNG_COLOR_TYPE_GRAY) {
+      std::snprintf(found, sizeof(found), "%d-bit %s", bit_depth, colourTypeName(colour_type));
+      status = 2;
+    } else {
+      if (hostIsLittleEndian()) png_set_swap(png);  // PNG stores 16-bit samples big-endian
+      png_read_update_info(png, info);
+      pixels.resize(static_cast<std::size_t>(w) * h);
+      rows.resize(h);
+      for (png_uint_32 v = 0; v < h; ++v)
+        rows[v] = reinterpret_cast<png_bytep>(pixels.data() + static_cast<std::size_t>(v) * w);
+      png_read_image(png, rows.data());
+      png_read_end(png, nullptr);
+    }
+  }
+  png_destroy_read_struct(&png, &info, nullptr);
+  if (status == 1) throw FileFormatError(path + ": corrupt PNG (" + err.message + ")");
+  if (status == 2)
+    throw FileFormatError(path + ": expected a 16-bit grayscale depth PNG, found " +
+                          std::string(found));
+  *width = static_cast<int>(w);
+  *height = static_cast<int>(h);
+  return pixels;
+}
+
+void writePng16(const std::string& path, const std::vector<std::uint16_t>& data, int width,
+                int height) {
+  if (width <= 0 || height <= 0 ||
+      data.size() != static_cast<std::size_t>(width) * static_cast<std::size_t>(height)) {
+    std::ostringstream s;
+    s << path << ": cannot write PNG: " << data.size() << " values for a " << width << "x" << height
+      << " image";
+    throw FileFormatError(s.str());
+  }
+  FilePtr file(std::fopen(path.c_str(), "wb"));
+  if (!file) throw FileFormatError(path + ": cannot create PNG (" + std::strerror(errno) + ")");
+  PngErrorBuffer err;
+  std::vector<png_bytep> rows(static_cast<std::size_t>(height));
+  for (int v = 0; v < height; ++v)
+    rows[v] = reinterpret_cast<png_bytep>(const_cast<std::uint16_t*>(data.data()) +
+                                          static_cast<std::size_t>(v) * width);
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &err, pngError, pngWarning);
+  if (png == nullptr) throw FileFormatError(path + ": cannot create a PNG writer");
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr) {
+    png_destroy_write_struct(&png, nullptr);
+    throw FileFormatError(path + ": cannot create a PNG writer");
+  }
+  volatile bool failed = false;
+  if (setjmp(png_jmpbuf(png))) {
+    failed = true;
+  } else {
+    png_init_io(png, file.get());
+    png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 16,
+                 PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
+                 PNG_FILTER_TYPE_DEFAULT);
+    png_write_info(png, info);
+    if (hostIsLittleEndian()) png_set_swap(png);
+    png_write_image(png, rows.data());
+    png_write_end(png, nullptr);
+  }
+  png_destroy_write_struct(&png, &info);
+  if (failed) throw FileFormatError(path + ": PNG write failed (" + err.message + ")");
+  if (std::fflush(file.get()) != 0)
+    throw FileFormatError(path + ": PNG write failed (" + std::strerror(errno) + ")");
+}
+
+std::vector<TumFrame> readTumFrameList(const std::string& list_path) {
+  std::ifstream in = openText(list_path, "frame list");
+  const std::string folder = folderOf(list_path);
+  std::vector<TumFrame> frames;
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (isCommentOrBlank(line)) continue;
+    const auto t = tokens(line);
+    TumFrame f;
+    if (t.size() != 2 || !parseFinite(t[0], &f.stamp_s))
+      throw FileFormatError(where(list_path, line_no) + "expected 'timestamp path', got '" + line +
+                            "'");
+    f.path = (!t[1].empty() && t[1][0] == '/') ? t[1] : folder + "/" + t[1];
+    if (!fileExists(f.path))
+      throw FileFormatError(where(list_path, line_no) + "listed image " + f.path +
+                            " does not exist");
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
+DepthImage loadTumDepth(const std::string& png_path, double depth_scale_m,
+                        const DepthRange& range) {
+  int w = 0, h = 0;
+  const std::vector<std::uint16_t> raw = readPng16(png_path, &w, &h);
+  try {
+    return depthFromRaw(raw.data(), w, h, 2 * static_cast<std::size_t>(w), DepthEncoding::kU16,
+                        depth_scale_m, range);
+  } catch (const DepthInputError& e) {
+    throw DepthInputError(png_path + ": " + e.what());
+  }
+}
+
+void saveTumDepth(const std::string& png_path, const DepthImage& depth, double depth_scale_m) {
+  if (!(std::isfinite(depth_scale_m) && depth_scale_m > 0.0))
+    throw FileFormatError(png_path + ": depth scale must be a positive number of metres per unit");
+  if (depth.data.size() != static_cast<std::size_t>(depth.width) * depth.height)
+    throw FileFormatError(png_path + ": depth frame buffer does not match its size");
+  std::vector<std::uint16_t> raw(depth.data.size());
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    const double d = depth.data[i];
+    const double units = std::round(d / depth_scale_m);
+    if (!std::isfinite(d) || d < 0.0 || units > 65535.0) {
+      std::ostringstream s;
+      s << png_path << ": depth " << d << " m at pixel (" << i % depth.width << ", "
+        << i / depth.width << ") does not fit 16 bits at " << depth_scale_m << " m per unit";
+      throw FileFormatError(s.str());
+    }
+    raw[i] = static_cast<std::uint16_t>(units);
+  }
+  writePng16(png_path, raw, depth.width, depth.height);
+}
+
+Trajectory readTumTrajectory(const std::string& path) {
+  std::ifstream in = openText(path, "trajectory");
+  Trajectory out;
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (isCommentOrBlank(line)) continue;
+    const auto t = tokens(line);
+    if (t.size() != 8) {
+      throw FileFormatError(where(path, line_no) +
+                            "expected 8 fields 't tx ty tz qx qy qz qw', got " +
+                            std::to_string(t.size()));
+    }
+    double v[8];
+    for (int i = 0; i < 8; ++i) {
+      if (!parseFinite(t[i], &v[i]))
+        throw FileFormatError(where(path, line_no) + "field " + std::to_string(i + 1) + " '" +
+                              t[i] + "' is not a finite number");
+    }
+    const Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
+    if (!(q.norm() > 1e-6))
+      throw FileFormatError(where(path, line_no) + "quaternion has zero length");
+    StampedPose p;
+    p.stamp_s = v[0];
+    p.T_W_C.linear() = q.normalized().toRotationMatrix();
+    p.T_W_C.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
+    out.push_back(p);
+  }
+  return out;
+}
+
+void writeTumTrajectory(const std::string& path, const Trajectory& trajectory,
+                        const std::string& comment) {
+  std::ofstream out(path);
+  if (!out)
+    throw FileFormatError(path + ": cannot create trajectory (" + std::strerror(errno) + ")");
+  if (!comment.empty()) out << "# " << comment << "\n";
+  out << "# timestamp tx ty tz qx qy qz qw (camera-to-world T_W_C, metres)\n";
+  for (std::size_t i = 0; i < trajectory.size(); ++i) {
+    const StampedPose& p = trajectory[i];
+    if (!std::isfinite(p.stamp_s) || !p.T_W_C.matrix().allFinite())
+      throw FileFormatError(path + ": pose " + std::to_string(i) + " is not finite");
+    Eigen::Quaterniond q(p.T_W_C.rotation());
+    if (q.w() < 0.0) q.coeffs() *= -1.0;
+    const Eigen::Vector3d t = p.T_W_C.translation();
+    out << std::fixed << std::setprecision(6) << p.stamp_s << ' ' << t.x() << ' ' << t.y() << ' '
+        << t.z() << std::setprecision(9) << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' '
+        << q.w() << '\n';
+  }
+  out.flush();
+  if (!out) throw FileFormatError(path + ": trajectory write failed");
+}
+
+std::vector<std::pair<std::size_t, std::size_t>> associateStamps(
+    const std::vector<double>& query_s, const std::vector<double>& reference_s, double max_gap_s) {
+  std::vector<std::size_t> order(reference_s.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return reference_s[a] < reference_s[b]; });
+  std::vector<double> sorted(order.size());
+  for (std::size_t i = 0; i < order.size(); ++i) sorted[i] = reference_s[order[i]];
+
+  std::vector<std::pair<std::size_t, std::size_t>> pairs;
+  for (std::size_t q = 0; q < query_s.size(); ++q) {
+    const double t = query_s[q];
+    if (!std::isfinite(t) || sorted.empty()) continue;
+    const std::size_t hi = static_cast<std::size_t>(
+        std::lower_bound(sorted.begin(), sorted.end(), t) - sorted.begin());
+    std::size_t best = sorted.size();
+    double best_gap = 0.0;
+    for (std::size_t cand = hi == 0 ? 0 : hi - 1; cand <= hi && cand < sorted.size(); ++cand) {
+      const double gap = std::abs(sorted[cand] - t);
+      if (best == sorted.size() || gap < best_gap) {
+        best = cand;
+        best_gap = gap;
+      }
+    }
+    if (best < sorted.size() && best_gap <= max_gap_s) pairs.emplace_back(q, order[best]);
+  }
+  return pairs;
+}
+
+AssociatedTrajectories associateTrajectories(const Trajectory& est, const Trajectory& gt,
+                                             double max_gap_s) {
+  std::vector<double> est_s(est.size()), gt_s(gt.size());
+  for (std::size_t i = 0; i < est.size(); ++i) est_s[i] = est[i].stamp_s;
+  for (std::size_t i = 0; i < gt.size(); ++i) gt_s[i] = gt[i].stamp_s;
+  AssociatedTrajectories out;
+  for (const auto& [ie, ig] : associateStamps(est_s, gt_s, max_gap_s)) {
+    if (!est[ie].T_W_C.matrix().allFinite() || !gt[ig].T_W_C.matrix().allFinite()) continue;
+    out.stamps_s.push_back(est[ie].stamp_s);
+    out.est_T_W_C.push_back(est[ie].T_W_C);
+    out.gt_T_W_C.push_back(gt[ig].T_W_C);
+  }
+  return out;
+}
+
+}  // namespace depth_track
