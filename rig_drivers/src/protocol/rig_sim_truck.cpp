@@ -23,7 +23,8 @@ std::vector<std::string> TruckModelConfig::validate() const {
   positive("camera_height_m", camera_height_m);
   if (!(max_steer_deg > 0.0 && max_steer_deg < 60.0))
     p.push_back("max_steer_deg: must lie in (0, 60) degrees");
-  if (!(std::abs(speed_scale_error) < 0.5)) p.push_back("speed_scale_error: must lie in (-0.5, 0.5)");
+  if (!(std::abs(speed_scale_error) < 0.5))
+    p.push_back("speed_scale_error: must lie in (-0.5, 0.5)");
   if (!std::isfinite(camera_forward_m)) p.push_back("camera_forward_m: must be finite");
   if (!(std::abs(camera_pitch_deg) < 45.0)) p.push_back("camera_pitch_deg: must lie in (-45, 45)");
   return p;
@@ -43,9 +44,8 @@ void TruckModel::step(double dt_s, double demanded_speed_mps, double steering) {
   if (!(dt_s > 0.0) || !std::isfinite(demanded_speed_mps) || !std::isfinite(steering)) {
     throw std::invalid_argument("TruckModel::step: dt_s must be > 0 and inputs finite");
   }
-  const double v_target =
-      std::clamp(demanded_speed_mps * (1.0 + config_.speed_scale_error), -config_.max_speed_mps,
-                 config_.max_speed_mps);
+  const double v_target = std::clamp(demanded_speed_mps * (1.0 + config_.speed_scale_error),
+                                     -config_.max_speed_mps, config_.max_speed_mps);
   // RC convention: +1 = full right; the model's steer angle is positive to the left.
   const double steer_target = -std::clamp(steering, -1.0, 1.0) * config_.max_steer_deg * kDeg;
   // Exact discretisation of the first-order lags.

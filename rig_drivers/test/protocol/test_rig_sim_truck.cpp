@@ -65,10 +65,10 @@ TEST(RigSimTruck, CameraLooksForwardAtMountHeight) {
   // Optical z (forward) = heading (+y in W); optical y (down) = -z in W.
   EXPECT_NEAR((T_W_C.rotation().col(2) - Eigen::Vector3d(0, 1, 0)).norm(), 0.0, 1e-12);
   EXPECT_NEAR((T_W_C.rotation().col(1) - Eigen::Vector3d(0, 0, -1)).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((T_W_C.translation() - Eigen::Vector3d(1.0, 2.0 + cfg.camera_forward_m,
-                                                     cfg.camera_height_m))
-                  .norm(),
-              0.0, 1e-12);
+  EXPECT_NEAR(
+      (T_W_C.translation() - Eigen::Vector3d(1.0, 2.0 + cfg.camera_forward_m, cfg.camera_height_m))
+          .norm(),
+      0.0, 1e-12);
 }
 
 TEST(RigSimTruck, BadConfigAndInputsAreRejected) {
