@@ -140,9 +140,14 @@ void BoardLink::run() {
     if (connected_ && steadyMs() - last_frame_ms_ > config_.stale_timeout_ms)
       linkLost("serial device '" + port_->device() + "': no frame for " +
                std::to_string(config_.stale_timeout_ms) + " ms (board silent)");
-    if (!connected_ && !port_->isOpen()) {
-      report_down(port_->lastError().empty() ? "link lost" : port_->lastError());
-      // After a loss, retry at once: a quick replug should not wait a whole period.
+    if (!port_->isOpen()) {
+      std::string why;
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        why = last_error_.empty() ? "link lost" : last_error_;
+      }
+      // Reported once per outage; the reopen is tried at once (a quick replug need not wait).
+      report_down(why);
     }
   }
   port_->close();
@@ -278,13 +283,12 @@ void BoardLink::flushOutgoing() {
 void BoardLink::linkLost(const std::string& why) {
   port_->close();
   decoder_.reset();
-  const bool was_connected = connected_.exchange(false);
+  connected_ = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     outgoing_.clear();
   }
-  failAllPending(why);
-  if (was_connected && on_event_) on_event_({LinkEvent::kDisconnected, why});
+  failAllPending(why);  // also records `why` as the reason run() reports, once per outage
 }
 
 void BoardLink::failAllPending(const std::string& why) {
