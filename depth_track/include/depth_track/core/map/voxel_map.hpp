@@ -1,0 +1,172 @@
+#pragma once
+/// Voxel occupancy map (thesis §2.14, §5.1): full-resolution depth frames fused at a pose into a
+/// blocked, hashed log-odds grid, flushed into an octomap::OcTree (the map of record, saved as
+/// `.bt`), and ray-cast back into virtual depth images (§3.14). ROS-free core.
+///
+/// Layout: voxels of `voxel_size_m` are grouped in blocks of 8^3 voxels, blocks in chunks of 8^3
+/// blocks (64^3 voxels, 32 cm at 5 mm). Chunks are found through a dense index over the bounding
+/// box of allocated chunks, so no lookup hashes. Every block keeps bit masks of its observed and
+/// occupied voxels; counts of occupied voxels per block and occupied blocks per chunk let ray
+/// traversal skip empty space a chunk or a block at a time.
+///
+/// Update models: kHitOnly (the thesis's: a hit raises a voxel's log-odds, nothing lowers it) and
+/// kProbabilistic (OctoMap's hit/miss model: rays carve free space in front of each return, so pose
+/// errors and moved objects heal). As in OctoMap's discretised insertion, a voxel takes at most one
+/// update per frame and a hit wins over a miss. Carving walks every `carve_stride_px`-th pixel
+/// (offset rotating frame to frame, so all pixels are covered over stride^2 frames) and only
+/// through blocks that already hold a return: empty space far from any surface stays "unknown",
+/// which is what keeps memory and time bounded.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/depth_image.hpp"
+
+namespace octomap {
+class OcTree;
+}
+
+namespace depth_track {
+
+/// Thrown when a map cannot be saved or loaded; the message names the file and the reason.
+class MapIoError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+enum class UpdateModel {
+  kHitOnly,        ///< thesis: occupancy only rises with hits, no free space
+  kProbabilistic,  ///< OctoMap: hits and misses, free space carved along rays
+};
+
+/// "hit_only" | "probabilistic" -> model; throws std::invalid_argument naming the bad value.
+UpdateModel parseUpdateModel(const std::string& name);
+std::string toString(UpdateModel model);
+
+/// Configuration of the voxel map. Probabilities are OctoMap's defaults.
+struct MapConfig {
+  double voxel_size_m = 0.005;  ///< voxel edge, metres (thesis: 5 mm)
+  bool bounded = true;          ///< false = unbounded (limited only by OctoMap's 16-bit keys)
+  /// Region size along the start camera's x (right), y (down), z (forward) axes, metres
+  /// (thesis: 4 m wide, 3 m high, 4 m deep).
+  Eigen::Vector3d region_size_m{4.0, 3.0, 4.0};
+  /// Position of the start camera inside the region, measured from the region's corner on the
+  /// start camera's -x, -y, -z side, metres (thesis: middle of the width and height, at the front).
+  Eigen::Vector3d start_in_region_m{2.0, 1.5, 0.0};
+  UpdateModel model = UpdateModel::kProbabilistic;
+  double prob_hit = 0.7;             ///< occupancy probability after a hit (OctoMap default)
+  double prob_miss = 0.4;            ///< ... after a miss
+  double clamp_min = 0.1192;         ///< lower clamp of the probability
+  double clamp_max = 0.971;          ///< upper clamp of the probability
+  double occupancy_threshold = 0.5;  ///< probability above which a voxel is occupied
+  int carve_stride_px = 4;           ///< carve along every n-th pixel ray in u and v (1 = all)
+  double carve_margin_m = 0.01;      ///< stop carving this far in front of a return (noise), m
+
+  /// Every problem at once (empty = valid).
+  std::vector<std::string> validate() const;
+};
+
+/// What one fusion call did.
+struct FuseStats {
+  int valid_pixels = 0;    ///< pixels with a return
+  int fused_pixels = 0;    ///< returns inside the region that updated (or re-hit) a voxel
+  int outside_region = 0;  ///< returns outside the bounded region (or the key range)
+  int hit_updates = 0;     ///< voxels updated as hit
+  int miss_updates = 0;    ///< voxels updated as miss (carving)
+  int carve_rays = 0;      ///< rays walked for carving
+  double ms = 0.0;         ///< wall time of the call
+};
+
+/// Occupancy state of one voxel.
+enum class VoxelState { kUnknown, kFree, kOccupied };
+
+/// Integer voxel index: voxel (i, j, k) spans [i, i+1) * voxel_size_m along each world axis.
+using VoxelKey = Eigen::Vector3i;
+
+class VoxelMap {
+ public:
+  /// Throws std::invalid_argument listing every problem of the config.
+  explicit VoxelMap(const MapConfig& config);
+  ~VoxelMap();
+  VoxelMap(VoxelMap&&) noexcept;
+  VoxelMap& operator=(VoxelMap&&) noexcept;
+  VoxelMap(const VoxelMap&) = delete;
+  VoxelMap& operator=(const VoxelMap&) = delete;
+
+  /// Places the bounded region around the start camera pose T_W_C0 (world AABB enclosing the
+  /// region box of the config in C0). Until called, a bounded map uses the region around the
+  /// world origin with identity orientation. Throws std::invalid_argument for a corrupt pose.
+  void placeRegion(const Eigen::Isometry3d& T_W_C0);
+  /// World AABB of the region (min, max), metres; unbounded maps return the key range.
+  Eigen::AlignedBox3d region() const;
+
+  /// Fuses a full-resolution depth frame (metres, 0 = no return) seen from T_W_C. Throws
+  /// DepthInputError for a frame whose size does not match the intrinsics or that has no return,
+  /// and std::invalid_argument for bad intrinsics or a non-finite / non-rigid pose; on a throw the
+  /// map is unchanged. Not thread-safe (one writer, no concurrent readers).
+  FuseStats fuse(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                 const Eigen::Isometry3d& T_W_C);
+
+  /// Virtual depth image (metres, 0 = no hit) seen by the camera at T_W_C: the depth of the first
+  /// occupied voxel along each pixel ray between range.min_m and range.max_m (mid-point of the
+  /// ray's chord through that voxel). Empty space is skipped per chunk and per block, and each
+  /// ray starts at the nearest occupied block projected onto its 4x4-pixel tile. Thread-safe
+  /// against other const calls; `threads` > 1 splits rows over TBB workers.
+  DepthImage raycast(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
+                     const DepthRange& range, int threads = 1) const;
+  /// Reference ray cast: every ray marched from range.min_m voxel by voxel through the same
+  /// occupancy test, without skipping. Slow; kept to check raycast() against. Thread-safe.
+  DepthImage raycastReference(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
+                              const DepthRange& range) const;
+
+  /// Voxel index containing world point p_W (metres). Thread-safe.
+  VoxelKey keyOf(const Eigen::Vector3d& p_W) const;
+  /// World centre of a voxel, metres. Thread-safe.
+  Eigen::Vector3d centerOf(const VoxelKey& key) const;
+  /// State of a voxel. Thread-safe against other const calls.
+  VoxelState state(const VoxelKey& key) const;
+  /// Log-odds of a voxel (0 when unknown). Thread-safe against other const calls.
+  float logOdds(const VoxelKey& key) const;
+  /// Calls f(key) for every occupied voxel. Thread-safe against other const calls.
+  void forEachOccupied(const std::function<void(const VoxelKey&)>& f) const;
+  /// Occupied voxel keys (unordered).
+  std::vector<VoxelKey> occupiedKeys() const;
+
+  /// Number of occupied voxels, blocks of 8^3 voxels allocated, and voxels ever observed.
+  std::size_t occupiedCount() const;
+  std::size_t blockCount() const;
+  std::size_t observedCount() const;
+  /// Heap bytes of the working grid (blocks, chunk index), excluding the OcTree.
+  std::size_t memoryBytes() const;
+  /// Heap bytes of the OcTree after the last flush (OctoMap's own memoryUsage()).
+  std::size_t octreeMemoryBytes() const;
+  const MapConfig& config() const { return config_; }
+  int framesFused() const { return frames_fused_; }
+
+  /// Pushes every voxel changed since the last flush into the OcTree (log-odds set key by key,
+  /// inner nodes updated, tree pruned) and returns it. Not thread-safe.
+  const octomap::OcTree& flush();
+  /// Flushes and writes the OcTree as an OctoMap binary `.bt` file (occupied/free per leaf, read
+  /// by octovis and octomap-tools). Written to a temporary file and renamed, so a failure leaves
+  /// an existing file and the map untouched; throws MapIoError naming the path on failure.
+  void save(const std::string& path_bt);
+  /// Occupied leaf voxels of an OctoMap file (.bt or .ot) with this map's voxel size, as keys of
+  /// this map's grid; throws MapIoError when the file cannot be read or its resolution differs.
+  std::vector<VoxelKey> loadOccupiedKeys(const std::string& path) const;
+
+  struct Impl;  ///< defined in src/core/map/voxel_map_impl.hpp
+
+ private:
+  MapConfig config_;
+  std::unique_ptr<Impl> impl_;
+  int frames_fused_ = 0;
+};
+
+}  // namespace depth_track

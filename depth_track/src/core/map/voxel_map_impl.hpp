@@ -1,0 +1,143 @@
+#pragma once
+// Private layout of VoxelMap, shared by voxel_map.cpp (fusion, flush, I/O) and raycast.cpp.
+#include <octomap/OcTree.h>
+
+#include <Eigen/Core>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include "depth_track/core/map/voxel_map.hpp"
+
+namespace depth_track {
+namespace map_detail {
+
+constexpr int kBlockShift = 3;  // 8 voxels per block edge
+constexpr int kChunkShift = 6;  // 64 voxels (8 blocks) per chunk edge
+constexpr int kBlockVoxels = 512;
+constexpr int kChunkBlocks = 512;
+constexpr int kKeyLimit = 32766;                  // OctoMap keys are index + 32768 in 16 bits
+constexpr std::size_t kMaxChunkIndex = 1u << 24;  // dense chunk index entries (128 MB of pointers)
+
+inline int voxelInBlock(int x, int y, int z) { return (x & 7) | ((y & 7) << 3) | ((z & 7) << 6); }
+inline int blockInChunk(int x, int y, int z) {
+  return ((x >> 3) & 7) | (((y >> 3) & 7) << 3) | (((z >> 3) & 7) << 6);
+}
+inline bool testBit(const std::array<std::uint64_t, 8>& m, int i) {
+  return (m[i >> 6] >> (i & 63)) & 1u;
+}
+inline void setBit(std::array<std::uint64_t, 8>& m, int i) {
+  m[i >> 6] |= std::uint64_t{1} << (i & 63);
+}
+inline void clearBit(std::array<std::uint64_t, 8>& m, int i) {
+  m[i >> 6] &= ~(std::uint64_t{1} << (i & 63));
+}
+
+struct Block {
+  std::array<float, kBlockVoxels> log_odds{};  // meaningful where `observed` is set
+  std::array<std::uint64_t, 8> observed{};
+  std::array<std::uint64_t, 8> occupied{};
+  std::array<std::uint64_t, 8> touched{};  // updated in frame `touch_frame`
+  std::array<std::uint64_t, 8> dirty{};    // changed since the last flush
+  std::uint32_t touch_frame = 0;
+  int n_occupied = 0;
+  bool any_dirty = false;
+};
+
+struct Chunk {
+  Eigen::Vector3i coord;  // chunk index (voxel index >> 6)
+  std::array<std::unique_ptr<Block>, kChunkBlocks> blocks;
+  int occupied_blocks = 0;  // blocks with n_occupied > 0
+};
+
+}  // namespace map_detail
+
+struct VoxelMap::Impl {
+  using Block = map_detail::Block;
+  using Chunk = map_detail::Chunk;
+
+  double s = 0.005, inv_s = 200.0;
+  float l_hit = 0, l_miss = 0, l_min = 0, l_max = 0, l_occ = 0;
+  Eigen::Vector3i key_lo{-map_detail::kKeyLimit, -map_detail::kKeyLimit, -map_detail::kKeyLimit};
+  Eigen::Vector3i key_hi{map_detail::kKeyLimit, map_detail::kKeyLimit, map_detail::kKeyLimit};
+
+  // Dense index over the box [index_lo, index_lo + index_dims) of chunk coordinates.
+  Eigen::Vector3i index_lo{0, 0, 0}, index_dims{0, 0, 0};
+  std::vector<Chunk*> index;
+  std::vector<std::unique_ptr<Chunk>> chunks;
+
+  std::unique_ptr<octomap::OcTree> tree;
+  std::uint32_t frame = 0;
+  std::size_t occupied_count = 0;
+  std::size_t block_count = 0;
+
+  Chunk* chunkAt(int cx, int cy, int cz) const {
+    const unsigned x = static_cast<unsigned>(cx - index_lo.x());
+    const unsigned y = static_cast<unsigned>(cy - index_lo.y());
+    const unsigned z = static_cast<unsigned>(cz - index_lo.z());
+    if (x >= static_cast<unsigned>(index_dims.x()) || y >= static_cast<unsigned>(index_dims.y()) ||
+        z >= static_cast<unsigned>(index_dims.z()))
+      return nullptr;
+    return index[(static_cast<std::size_t>(z) * index_dims.y() + y) * index_dims.x() + x];
+  }
+  Block* blockAt(int x, int y, int z) const {
+    const Chunk* c = chunkAt(x >> map_detail::kChunkShift, y >> map_detail::kChunkShift,
+                             z >> map_detail::kChunkShift);
+    return c ? c->blocks[map_detail::blockInChunk(x, y, z)].get() : nullptr;
+  }
+  bool inKeyRange(int x, int y, int z) const {
+    return x >= key_lo.x() && y >= key_lo.y() && z >= key_lo.z() && x <= key_hi.x() &&
+           y <= key_hi.y() && z <= key_hi.z();
+  }
+
+  // Walks the ray P(t) = o + t d (world metres; t need not be a distance) for t in [t0, t1) over
+  // voxels of allocated blocks, skipping missing chunks/blocks whole; with kOccupiedOnly it also
+  // skips chunks and blocks without an occupied voxel. f(chunk, block, voxel, t_in, t_out)
+  // returns true to stop. Returns false when the ray ran out.
+  template <bool kOccupiedOnly, bool kNoSkip = false, class F>
+  bool walk(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0, double t1, F&& f) const {
+    const Eigen::Vector3d O = o * inv_s;
+    const Eigen::Vector3d D = d * inv_s;
+    const double inf = std::numeric_limits<double>::infinity();
+    const Eigen::Vector3d invD(D.x() != 0.0 ? 1.0 / D.x() : inf, D.y() != 0.0 ? 1.0 / D.y() : inf,
+                               D.z() != 0.0 ? 1.0 / D.z() : inf);
+    const bool pos[3] = {D.x() >= 0.0, D.y() >= 0.0, D.z() >= 0.0};
+    constexpr double kEps = 1e-9;
+    double t = t0;
+    while (t < t1) {
+      const int v[3] = {static_cast<int>(std::floor(O.x() + t * D.x())),
+                        static_cast<int>(std::floor(O.y() + t * D.y())),
+                        static_cast<int>(std::floor(O.z() + t * D.z()))};
+      int shift = 0;
+      Chunk* c = chunkAt(v[0] >> map_detail::kChunkShift, v[1] >> map_detail::kChunkShift,
+                         v[2] >> map_detail::kChunkShift);
+      Block* b = nullptr;
+      if (!c || (kOccupiedOnly && c->occupied_blocks == 0)) {
+        shift = map_detail::kChunkShift;
+      } else {
+        b = c->blocks[map_detail::blockInChunk(v[0], v[1], v[2])].get();
+        if (!b || (kOccupiedOnly && b->n_occupied == 0)) shift = map_detail::kBlockShift;
+      }
+      if (kNoSkip) shift = 0;
+      double t_exit = inf;
+      for (int a = 0; a < 3; ++a) {
+        const int lo = (v[a] >> shift) << shift;
+        const double bound = pos[a] ? lo + (1 << shift) : lo;
+        const double te = (bound - O[a]) * invD[a];
+        if (te < t_exit) t_exit = te;
+      }
+      t_exit = std::max(t_exit, t);
+      if (shift == 0 && b) {
+        if (f(*c, *b, map_detail::voxelInBlock(v[0], v[1], v[2]), t, std::min(t_exit, t1)))
+          return true;
+      }
+      t = t_exit + kEps;
+    }
+    return false;
+  }
+};
+
+}  // namespace depth_track
