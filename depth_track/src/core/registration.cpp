@@ -5,6 +5,8 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -38,6 +40,8 @@ std::vector<std::string> RegistrationConfig::validate() const {
   if (!(match.dist_min_m > 0.0)) p.push_back("dist_min_m must be > 0 m");
   if (!(match.cos_min > -1.0 && match.cos_min <= 1.0)) p.push_back("cos_min must lie in (-1, 1]");
   if (!(match.normal_weight_m >= 0.0)) p.push_back("normal_weight_m must be >= 0 m");
+  if (!(match.initial_dist_m >= 0.0)) p.push_back("initial_dist_m must be >= 0 m");
+  if (patience < 1) p.push_back("patience must be >= 1");
   if (match.search_radius_cells < 0 || match.search_radius_cells > 16)
     p.push_back("search_radius_cells must lie in [0, 16]");
   if (!(fm_thresh > 0.0)) p.push_back("fm_thresh must be > 0");
@@ -65,6 +69,36 @@ double forstnerMoonenFromMatrices(const Eigen::Matrix3d& a_inv_sqrt, const Eigen
 double forstnerMoonen(const Cell& a, const Cell& b, double eps_m2) {
   const Eigen::Matrix3d b_reg = b.cov.cast<double>() + eps_m2 * Eigen::Matrix3d::Identity();
   return forstnerMoonenFromMatrices(a.cov_inv_sqrt.cast<double>(), b_reg);
+}
+
+Eigen::Isometry3d alignPointToPoint(const std::vector<Eigen::Vector3d>& p,
+                                    const std::vector<Eigen::Vector3d>& q,
+                                    const std::vector<double>& w) {
+  if (p.size() != q.size() || (!w.empty() && w.size() != p.size()))
+    throw std::invalid_argument("alignPointToPoint: point and weight counts differ");
+  if (p.size() < 3) throw std::invalid_argument("alignPointToPoint: needs at least 3 pairs");
+  double wsum = 0.0;
+  Eigen::Vector3d mp = Eigen::Vector3d::Zero(), mq = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const double wi = w.empty() ? 1.0 : w[i];
+    wsum += wi;
+    mp += wi * p[i];
+    mq += wi * q[i];
+  }
+  if (!(wsum > 0.0)) throw std::invalid_argument("alignPointToPoint: weights sum to zero");
+  mp /= wsum;
+  mq /= wsum;
+  Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+  for (std::size_t i = 0; i < p.size(); ++i)
+    S += (w.empty() ? 1.0 : w[i]) * (p[i] - mp) * (q[i] - mq).transpose();
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(S, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  // Reflection check: a negative determinant would mirror the cloud instead of rotating it.
+  if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0.0) D(2, 2) = -1.0;
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = svd.matrixV() * D * svd.matrixU().transpose();
+  T.translation() = mq - T.linear() * mp;
+  return T;
 }
 
 namespace {
@@ -206,40 +240,22 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   return xi->allFinite();
 }
 
-// Weighted point-to-point (Kabsch/Umeyama without scale) in closed form. Returns the full
-// transform that moves the current points onto their partners, relative to their present place.
+// Point-to-point step on the current pairs through alignPointToPoint.
 bool solvePointToPoint(const CellCloud& reference, const Moved& moved, const MatchResult& m,
                        const RegistrationConfig& config, Eigen::Isometry3d* delta, double* rms) {
-  double wsum = 0.0, sq = 0.0;
-  Eigen::Vector3d mp = Eigen::Vector3d::Zero(), mq = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> p(m.pairs.size()), q(m.pairs.size());
   std::vector<double> w(m.pairs.size());
+  double sq = 0.0;
   for (std::size_t i = 0; i < m.pairs.size(); ++i) {
     const auto [r, c] = m.pairs[i];
-    const Eigen::Vector3d e = moved.p[c].cast<double>() - reference.cells[r].mean_C.cast<double>();
-    sq += e.squaredNorm();
-    w[i] = huberWeight(e.norm(), config);
-    wsum += w[i];
-    mp += w[i] * moved.p[c].cast<double>();
-    mq += w[i] * reference.cells[r].mean_C.cast<double>();
+    p[i] = moved.p[c].cast<double>();
+    q[i] = reference.cells[r].mean_C.cast<double>();
+    const double e = (p[i] - q[i]).norm();
+    sq += e * e;
+    w[i] = huberWeight(e, config);
   }
   *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
-  if (!(wsum > 0.0)) return false;
-  mp /= wsum;
-  mq /= wsum;
-  Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
-  for (std::size_t i = 0; i < m.pairs.size(); ++i) {
-    const auto [r, c] = m.pairs[i];
-    S += w[i] * (moved.p[c].cast<double>() - mp) *
-         (reference.cells[r].mean_C.cast<double>() - mq).transpose();
-  }
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(S, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  // Reflection check: a negative determinant would mirror the cloud instead of rotating it.
-  if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0.0) D(2, 2) = -1.0;
-  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
-  delta->setIdentity();
-  delta->linear() = R;
-  delta->translation() = mq - R * mp;
+  *delta = alignPointToPoint(p, q, w);
   return delta->matrix().allFinite();
 }
 
@@ -270,14 +286,19 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
   Eigen::Isometry3d T_best = T;
   double best_rms = std::numeric_limits<double>::infinity();
   bool error_rose = false;
+  int since_best = 0;
   Moved moved;
   for (int it = 0; it < config.max_iterations; ++it) {
     moveCells(current, T, &moved);
     // The first pass covers the prediction's error; later passes follow a re-projected estimate.
     const int radius =
         it == 0 ? config.match.search_radius_cells : std::min(1, config.match.search_radius_cells);
+    RegistrationConfig gated = config;
+    gated.match.dist_min_m =
+        std::max(config.match.dist_min_m,
+                 config.match.initial_dist_m / static_cast<double>(1 << std::min(it, 20)));
     const MatchResult m =
-        associate(reference, current, moved, intrinsics, T.rotation(), config, radius);
+        associate(reference, current, moved, intrinsics, T.rotation(), gated, radius);
     result.iterations = it + 1;
     result.candidates = m.candidates;
     result.duplicates_broken = m.duplicates_broken;
@@ -305,14 +326,16 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
       result.T_ref_cur = std::isfinite(best_rms) ? T_best : T_ref_cur_guess;
       return result;
     }
-    // rms is the error at T, before this update: stop once it no longer decreases.
-    if (it >= 2 && rms > best_rms * (1.0 + 1e-3)) {
-      error_rose = true;
-      break;
-    }
-    if (rms <= best_rms) {
+    // rms is the error at T, before this update: stop once it has stopped decreasing for
+    // `patience` iterations (pair sets change between iterations, so one rise is no verdict),
+    // and return the best pose seen.
+    if (rms < best_rms) {
       best_rms = rms;
       T_best = T;
+      since_best = 0;
+    } else if (++since_best >= config.patience) {
+      error_rose = true;
+      break;
     }
     result.error_rms_m = rms;
     T = orthonormalized(delta * T);

@@ -50,7 +50,9 @@ struct CellCloud {
 struct PcaConfig {
   int cell_size = 5;                ///< pixels per cell side; one of 2, 4, 5, 8, 10, 16, 32
   double min_valid_fraction = 1.0;  ///< 1.0 = the thesis's rule: any missing pixel prunes the cell
-  double min_eigenvalue_m2 = 1e-8;  ///< regulariser added to the covariance for cov_inv_sqrt, m^2
+  /// Regulariser added to covariances for cov_inv_sqrt, m^2: (1 mm)^2, about the depth noise of a
+  /// good sensor, so the Förstner–Moonen metric does not weigh sub-noise thicknesses.
+  double min_eigenvalue_m2 = 1e-6;
 
   /// Every problem for frames of width x height pixels (a size that does not tile is named).
   std::vector<std::string> validate(int width, int height) const;

@@ -20,8 +20,10 @@ std::string toString(RegistrationMethod method);
 
 /// Pair-matching thresholds (thesis §3.8) and the search window.
 struct MatchConfig {
-  double dist_min_m = 0.05;       ///< max distance between paired mean vertices, metres (DistMin)
-  double cos_min = 0.99;          ///< min cosine between paired normals (CosMin); cos(8.1 deg)
+  double dist_min_m = 0.05;  ///< max distance between paired mean vertices, metres (DistMin)
+  double initial_dist_m =
+      0.2;                ///< first-iteration gate, halved per iteration down to dist_min_m, m
+  double cos_min = 0.99;  ///< min cosine between paired normals (CosMin); cos(8.1 deg)
   double normal_weight_m = 0.05;  ///< metres per unit of normal difference in the 6-vector distance
   int search_radius_cells = 2;    ///< image-grid window (cells) around the predicted position
 };
@@ -31,8 +33,9 @@ struct RegistrationConfig {
   RegistrationMethod method = RegistrationMethod::kPointToPlane;  ///< (RegMethod)
   MatchConfig match;
   double fm_thresh = 1.0;       ///< Förstner–Moonen gate for Cell Search (FMThresh)
-  double fm_eps_m2 = 1e-8;      ///< covariance regulariser, = PcaConfig::min_eigenvalue_m2
+  double fm_eps_m2 = 1e-6;      ///< covariance regulariser, = PcaConfig::min_eigenvalue_m2
   int max_iterations = 30;      ///< ICP iterations (re-matching after each update)
+  int patience = 3;             ///< stop after this many iterations without a lower error
   double tolerance_m = 1e-5;    ///< stop when an update moves points less than this, metres
   double tolerance_rad = 1e-5;  ///< ... and rotates less than this, radians
   bool robust = true;           ///< Huber weighting of residuals
@@ -74,6 +77,13 @@ double forstnerMoonen(const Cell& a, const Cell& b, double eps_m2 = PcaConfig{}.
 
 /// The same metric from A's regularised inverse square root and B's regularised covariance.
 double forstnerMoonenFromMatrices(const Eigen::Matrix3d& a_inv_sqrt, const Eigen::Matrix3d& b_reg);
+
+/// Closed-form weighted point-to-point alignment (SVD with the reflection check): the rigid T
+/// minimising sum w_i |T p_i - q_i|^2. `w` may be empty (all ones). Throws std::invalid_argument
+/// for fewer than 3 pairs or mismatched sizes. Thread-safe.
+Eigen::Isometry3d alignPointToPoint(const std::vector<Eigen::Vector3d>& p,
+                                    const std::vector<Eigen::Vector3d>& q,
+                                    const std::vector<double>& w = {});
 
 /// Pairs reference cells with current cells one-to-one, given T_ref_cur. Thread-safe.
 MatchResult matchCells(const CellCloud& reference, const CellCloud& current,

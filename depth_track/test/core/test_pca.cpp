@@ -1,0 +1,138 @@
+#include <gtest/gtest.h>
+
+#include <Eigen/Eigenvalues>
+#include <cmath>
+#include <random>
+
+#include "depth_track/core/cells.hpp"
+#include "planes_scene.hpp"
+
+using namespace depth_track;
+using depth_track::test::Plane;
+using depth_track::test::renderPlanes;
+
+namespace {
+PinholeIntrinsics l515() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
+}  // namespace
+
+TEST(Pca, TiltedPlaneGivesItsNormalAndZeroSurfaceVariation) {
+  const Eigen::Vector3d n_true = Eigen::Vector3d(0.3, -0.2, -1.0).normalized();  // faces camera
+  const DepthImage depth = renderPlanes({{n_true, -2.0}}, l515(), Eigen::Isometry3d::Identity());
+  PcaConfig cfg;
+  cfg.cell_size = 5;
+  const CellCloud cloud = reduceToCells(depth, l515(), cfg);
+  EXPECT_EQ(cloud.stats.total, 128 * 96);
+  EXPECT_EQ(cloud.stats.retained, 128 * 96);
+  for (const Cell& c : cloud.cells) {
+    ASSERT_GT(c.normal_C.cast<double>().dot(n_true), 1.0 - 1e-6);  // float geometry of ~2 m
+    ASSERT_LT(c.surface_variation, 1e-5f);
+    ASSERT_NEAR(n_true.dot(c.mean_C.cast<double>()), -2.0, 1e-4);  // mean lies on the plane
+    ASSERT_LE(c.eigenvalues(0), c.eigenvalues(1));
+    ASSERT_LE(c.eigenvalues(1), c.eigenvalues(2));
+  }
+}
+
+TEST(Pca, CovarianceAndEigenvectorsMatchADirectComputation) {
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.0f, 0.003f);
+  DepthImage depth(40, 40);
+  for (float& d : depth.data) d = 1.5f + noise(rng);
+  PinholeIntrinsics K = PinholeIntrinsics::isotropic(40, 40, 458.0);
+  PcaConfig cfg;
+  cfg.cell_size = 8;
+  const CellCloud cloud = reduceToCells(depth, K, cfg);
+  ASSERT_EQ(cloud.cells.size(), 25u);
+  const Cell& c = cloud.cells[7];
+  std::vector<Eigen::Vector3d> pts;
+  for (int v = c.gy * 8; v < c.gy * 8 + 8; ++v)
+    for (int u = c.gx * 8; u < c.gx * 8 + 8; ++u)
+      pts.push_back(K.backProject(u, v, depth.at(u, v)).cast<double>());
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : pts) mean += p;
+  mean /= pts.size();
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& p : pts) cov += (p - mean) * (p - mean).transpose();
+  cov /= (pts.size() - 1.0);
+  EXPECT_LT((c.mean_C.cast<double>() - mean).norm(), 1e-6);
+  EXPECT_LT((c.cov.cast<double>() - cov).norm(), 1e-6 * cov.norm() + 1e-12);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+  EXPECT_NEAR(std::abs(es.eigenvectors().col(0).dot(c.normal_C.cast<double>())), 1.0, 1e-4);
+  EXPECT_NEAR(c.det, cov.determinant(), 1e-3 * std::abs(cov.determinant()));
+  EXPECT_NEAR(c.surface_variation, es.eigenvalues()(0) / es.eigenvalues().sum(), 1e-4);
+  // (cov + eps)^(-1/2) squared times (cov + eps) is the identity.
+  const Eigen::Matrix3d reg = cov + cfg.min_eigenvalue_m2 * Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d is = c.cov_inv_sqrt.cast<double>();
+  EXPECT_LT((is * reg * is - Eigen::Matrix3d::Identity()).norm(), 2e-3);
+}
+
+TEST(Pca, CellsWithHolesArePrunedUnlessAFractionIsAllowed) {
+  DepthImage depth =
+      renderPlanes({{Eigen::Vector3d(0, 0, -1), -2.0}}, l515(), Eigen::Isometry3d::Identity());
+  depth.at(12, 7) = 0.0f;  // one hole in cell (2, 1)
+  for (int v = 100; v < 105; ++v)
+    for (int u = 200; u < 205; ++u) depth.at(u, v) = 0.0f;  // an empty cell (40, 20)
+  PcaConfig cfg;
+  const CellCloud strict = reduceToCells(depth, l515(), cfg);
+  EXPECT_EQ(strict.stats.pruned_invalid, 2);
+  EXPECT_EQ(strict.stats.retained, 128 * 96 - 2);
+  EXPECT_EQ(strict.cellAt(2, 1), -1);
+  EXPECT_EQ(strict.cellAt(40, 20), -1);
+  EXPECT_GE(strict.cellAt(3, 1), 0);
+  cfg.min_valid_fraction = 0.9;
+  const CellCloud lenient = reduceToCells(depth, l515(), cfg);
+  EXPECT_EQ(lenient.stats.pruned_invalid, 1);
+  ASSERT_GE(lenient.cellAt(2, 1), 0);
+  EXPECT_EQ(lenient.cells[lenient.cellAt(2, 1)].n_valid, 24);
+}
+
+TEST(Pca, CellSizeThatDoesNotTileIsNamed) {
+  PcaConfig cfg;
+  cfg.cell_size = 7;
+  ASSERT_EQ(cfg.validate(640, 480).size(), 1u);
+  EXPECT_NE(cfg.validate(640, 480)[0].find("7"), std::string::npos);
+  cfg.cell_size = 32;
+  EXPECT_TRUE(cfg.validate(640, 480).empty());
+  const auto p = cfg.validate(650, 480);
+  ASSERT_EQ(p.size(), 1u);
+  EXPECT_NE(p[0].find("does not tile"), std::string::npos);
+  EXPECT_NE(p[0].find("650"), std::string::npos);
+  PinholeIntrinsics K = PinholeIntrinsics::isotropic(650, 480, 458.0);
+  EXPECT_THROW(reduceToCells(DepthImage(650, 480, 1.0f), K, cfg), DepthInputError);
+  for (int s : {2, 4, 5, 8, 10, 16}) {
+    cfg.cell_size = s;
+    EXPECT_TRUE(cfg.validate(640, 480).empty()) << s;
+  }
+}
+
+TEST(Pca, EmptyNanAndWrongSizeFrames) {
+  PcaConfig cfg;
+  const CellCloud empty = reduceToCells(DepthImage(640, 480, 0.0f), l515(), cfg);
+  EXPECT_EQ(empty.stats.retained, 0);
+  EXPECT_EQ(empty.stats.pruned_invalid, 128 * 96);
+  const CellCloud nan = reduceToCells(DepthImage(640, 480, std::nanf("")), l515(), cfg);
+  EXPECT_EQ(nan.stats.retained, 0);
+  EXPECT_THROW(reduceToCells(DepthImage(320, 240, 1.0f), l515(), cfg), DepthInputError);
+}
+
+TEST(Pca, CollinearCellsArePrunedAsDegenerate) {
+  // Only one row of each 4x4 cell is valid: points on a line have no plane.
+  DepthImage depth(16, 16, 0.0f);
+  for (int u = 0; u < 16; ++u) depth.at(u, 1) = 2.0f;
+  PcaConfig cfg;
+  cfg.cell_size = 4;
+  cfg.min_valid_fraction = 0.25;
+  const CellCloud cloud = reduceToCells(depth, PinholeIntrinsics::isotropic(16, 16, 458.0), cfg);
+  EXPECT_EQ(cloud.stats.retained, 0);
+  EXPECT_EQ(cloud.stats.pruned_degenerate, 4);
+}
+
+TEST(Pca, ThreadCountDoesNotChangeTheResult) {
+  const auto planes = depth_track::test::cornerRoom();
+  const DepthImage depth = renderPlanes(planes, l515(), Eigen::Isometry3d::Identity());
+  PcaConfig cfg;
+  const CellCloud a = reduceToCells(depth, l515(), cfg, 1);
+  const CellCloud b = reduceToCells(depth, l515(), cfg, 2);
+  ASSERT_EQ(a.cells.size(), b.cells.size());
+  EXPECT_EQ(a.grid_index, b.grid_index);
+  for (std::size_t i = 0; i < a.cells.size(); ++i) ASSERT_EQ(a.cells[i].mean_C, b.cells[i].mean_C);
+}
