@@ -1,0 +1,28 @@
+#pragma once
+/// Synthetic depth rendering of an analytic scene (ROS-free, library depth_track_sim).
+#include <Eigen/Geometry>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/sim/scene.hpp"
+
+namespace depth_track {
+namespace sim {
+
+/// Renders the exact z-depth (along the optical axis, not the ray length), metres, of the
+/// nearest surface through every pixel centre, for a camera at T_W_C (optical frame: x right,
+/// y down, z forward). 0 = no surface, or the nearest surface lies outside `range` (a surface
+/// closer than range.min_m still hides what is behind it, as on a real sensor).
+/// Rows are split over TBB workers; threads <= 0 uses TBB's default, 1 runs serially; the
+/// result does not depend on the thread count. Throws std::invalid_argument naming every
+/// problem of the scene, intrinsics, range or pose. Thread-safe (reads the scene only).
+DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& intrinsics,
+                       const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads = 0);
+
+/// Reference renderer for equivalence tests: same contract as renderDepth, but tests every
+/// primitive for every pixel without screen-space culling, serially. Slow; not for runs.
+DepthImage renderDepthReference(const Scene& scene, const PinholeIntrinsics& intrinsics,
+                                const Eigen::Isometry3d& T_W_C, const DepthRange& range);
+
+}  // namespace sim
+}  // namespace depth_track

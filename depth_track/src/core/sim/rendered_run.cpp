@@ -1,0 +1,248 @@
+#include "depth_track/core/sim/rendered_run.hpp"
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "depth_track/core/sim/render.hpp"
+
+namespace depth_track {
+namespace sim {
+
+namespace {
+constexpr double kDeg = M_PI / 180.0;
+}  // namespace
+
+PinholeIntrinsics l515Intrinsics() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
+
+DepthImage RenderedRun::renderFrame(std::size_t i, const NoiseConfig& noise, std::uint64_t run_seed,
+                                    int threads) const {
+  if (i >= T_W_C.size()) {
+    std::ostringstream s;
+    s << "run '" << name << "' has " << T_W_C.size() << " frames; frame " << i << " requested";
+    throw std::out_of_range(s.str());
+  }
+  const DepthImage clean = renderDepth(scene, intrinsics, T_W_C[i], range, threads);
+  return applyNoise(clean, noise, frameSeed(run_seed, i), range);
+}
+
+std::vector<std::string> TrackRunSpec::validate() const {
+  std::vector<std::string> p;
+  if (name.empty()) p.push_back("run name is empty");
+  if (!(std::isfinite(rate_hz) && rate_hz > 0.0)) p.push_back("rate_hz must be > 0");
+  if (still_frames < 0) p.push_back("still_frames must be >= 0");
+  if (!std::isfinite(start_pos_m)) p.push_back("start_pos_m must be finite");
+  const bool stepped = step_m > 0.0;
+  if (stepped && steps <= 0) p.push_back("stepped mode needs steps > 0");
+  if (!stepped && !(std::isfinite(speed_mps) && std::isfinite(duration_s) && duration_s > 0.0))
+    p.push_back("continuous mode needs a finite speed_mps and duration_s > 0");
+  if (axis != Axis::kNone && !(std::isfinite(amplitude_deg) && std::abs(amplitude_deg) <= 45.0 &&
+                               std::isfinite(frequency_hz) && frequency_hz >= 0.0))
+    p.push_back("gimbal input needs |amplitude_deg| <= 45 and frequency_hz >= 0");
+  if (!std::isfinite(step_m)) p.push_back("step_m must be finite");
+  return p;
+}
+
+RenderedRun makeTrackRun(const TrackRunSpec& spec, const Scene& scene, const TrackGeometry& track) {
+  auto problems = spec.validate();
+  for (const auto& q : track.validate()) problems.push_back(q);
+  if (!problems.empty())
+    throw std::invalid_argument("track run '" + spec.name + "': " + joinProblems(problems));
+  RenderedRun run;
+  run.name = spec.name;
+  run.description = spec.description;
+  run.scene = scene;
+  run.on_track = true;
+  run.track = track;
+  auto add = [&](double t, double pos, double angle_t) {
+    RigSample s;
+    s.track_pos_m = pos;
+    const double a = spec.amplitude_deg * kDeg * std::sin(2.0 * M_PI * spec.frequency_hz * angle_t);
+    if (spec.axis == TrackRunSpec::Axis::kPitch) s.pitch_rad = a;
+    if (spec.axis == TrackRunSpec::Axis::kYaw) s.yaw_rad = a;
+    run.stamps_s.push_back(t);
+    run.rig.push_back(s);
+    run.T_W_C.push_back(cameraPoseOnTrack(s.track_pos_m, s.pitch_rad, s.yaw_rad, track));
+  };
+  const double dt = 1.0 / spec.rate_hz;
+  int k = 0;
+  for (; k < spec.still_frames; ++k) add(k * dt, spec.start_pos_m, 0.0);
+  if (spec.step_m > 0.0) {
+    for (int i = 1; i <= spec.steps; ++i, ++k)
+      add(k * dt, spec.start_pos_m + i * spec.step_m, (i - 1) * dt);
+  } else {
+    const int n = static_cast<int>(std::lround(spec.duration_s * spec.rate_hz));
+    for (int i = 0; i < n; ++i, ++k)
+      add(k * dt, spec.start_pos_m + spec.speed_mps * i * dt, i * dt);
+  }
+  return run;
+}
+
+std::vector<std::string> TruckRunSpec::validate() const {
+  std::vector<std::string> p;
+  if (name.empty()) p.push_back("run name is empty");
+  if (!(std::isfinite(rate_hz) && rate_hz > 0.0)) p.push_back("rate_hz must be > 0");
+  if (!start_xy_m.allFinite() || !std::isfinite(start_heading_rad))
+    p.push_back("start pose must be finite");
+  if (!(std::isfinite(camera_height_m) && camera_height_m > 0.0))
+    p.push_back("camera_height_m must be > 0");
+  if (!std::isfinite(camera_forward_m) || !std::isfinite(camera_pitch_rad))
+    p.push_back("camera offsets must be finite");
+  if (still_frames < 0) p.push_back("still_frames must be >= 0");
+  if (segments.empty()) p.push_back("a truck run needs at least one segment");
+  for (std::size_t i = 0; i < segments.size(); ++i) {
+    const auto& s = segments[i];
+    if (!(std::isfinite(s.duration_s) && s.duration_s > 0.0 && std::isfinite(s.speed_mps) &&
+          std::isfinite(s.yaw_rate_radps)))
+      p.push_back("segment " + std::to_string(i) + " needs duration_s > 0 and finite rates");
+  }
+  return p;
+}
+
+RenderedRun makeTruckRun(const TruckRunSpec& spec, const Scene& scene) {
+  const auto problems = spec.validate();
+  if (!problems.empty())
+    throw std::invalid_argument("truck run '" + spec.name + "': " + joinProblems(problems));
+  RenderedRun run;
+  run.name = spec.name;
+  run.description = spec.description;
+  run.scene = scene;
+
+  Eigen::Isometry3d T_B_C = Eigen::Isometry3d::Identity();  // truck body -> optical
+  T_B_C.translation() = Eigen::Vector3d(spec.camera_forward_m, 0.0, spec.camera_height_m);
+  T_B_C.linear() = Eigen::AngleAxisd(-spec.camera_pitch_rad, Eigen::Vector3d::UnitY()) *
+                   rotationBodyFromOptical();
+  Eigen::Vector2d p = spec.start_xy_m;
+  double heading = spec.start_heading_rad;
+  auto add = [&](double t) {
+    Eigen::Isometry3d T_W_B = Eigen::Isometry3d::Identity();
+    T_W_B.translation() = Eigen::Vector3d(p.x(), p.y(), 0.0);
+    T_W_B.linear() = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    run.stamps_s.push_back(t);
+    run.T_W_C.push_back(T_W_B * T_B_C);
+  };
+  const double dt = 1.0 / spec.rate_hz;
+  int k = 0;
+  for (; k < spec.still_frames; ++k) add(k * dt);
+  // Time within the current segment; the first moving frame is one period after the last
+  // still frame.
+  std::size_t seg = 0;
+  double seg_left = spec.segments[0].duration_s;
+  const double eps = 1e-9;
+  while (seg < spec.segments.size()) {
+    double step = dt;
+    // Advance exactly one frame period across segment boundaries (exact arcs per piece).
+    while (step > eps && seg < spec.segments.size()) {
+      const double h = std::min(step, seg_left);
+      const TruckSegment& s = spec.segments[seg];
+      const double dth = s.yaw_rate_radps * h;
+      Eigen::Vector2d d;
+      if (std::abs(dth) < 1e-12) {
+        d = Eigen::Vector2d(s.speed_mps * h, 0.0);
+      } else {
+        const double r = s.speed_mps / s.yaw_rate_radps;
+        d = Eigen::Vector2d(r * std::sin(dth), r * (1.0 - std::cos(dth)));
+      }
+      p += Eigen::Rotation2Dd(heading) * d;
+      heading += dth;
+      step -= h;
+      seg_left -= h;
+      if (seg_left <= eps) {
+        ++seg;
+        if (seg < spec.segments.size()) seg_left = spec.segments[seg].duration_s;
+      }
+    }
+    if (step > eps) break;  // the drive ended between frames
+    add(k * dt);
+    ++k;
+  }
+  return run;
+}
+
+namespace {
+
+TrackRunSpec rtSpec(const std::string& name, double speed_mmps, double duration_s,
+                    TrackRunSpec::Axis axis, double amplitude_deg, double frequency_hz) {
+  TrackRunSpec s;
+  s.name = name;
+  std::ostringstream d;
+  d << "ServoTrack real-time run " << name << " (thesis table 5.4): " << speed_mmps
+    << " mm/s achieved for " << duration_s << " s";
+  if (axis != TrackRunSpec::Axis::kNone)
+    d << ", " << (axis == TrackRunSpec::Axis::kPitch ? "pitch" : "yaw") << " +-" << amplitude_deg
+      << " deg at " << frequency_hz << " Hz";
+  s.description = d.str();
+  s.speed_mps = speed_mmps / 1000.0;
+  s.duration_s = duration_s;
+  s.axis = axis;
+  s.amplitude_deg = amplitude_deg;
+  s.frequency_hz = frequency_hz;
+  return s;
+}
+
+}  // namespace
+
+std::vector<std::string> knownRuns() {
+  return {"xtest1_05_chair", "rt1", "rt2", "rt3", "rt4", "rt5", "rt6", "chair3", "room3", "hall1"};
+}
+
+RenderedRun makeRun(const std::string& name) {
+  using Axis = TrackRunSpec::Axis;
+  if (name == "xtest1_05_chair") {
+    TrackRunSpec s;
+    s.name = name;
+    s.description =
+        "ServoTrack Mode 2 (thesis 5.3): 3 still frames, then 100 steps of 10 mm towards the "
+        "chair, no rotation; chair back 2.16 m and back wall 3.2 m ahead at the start";
+    s.still_frames = 3;
+    s.step_m = 0.010;
+    s.steps = 100;
+    return makeTrackRun(s, chairRoomScene());
+  }
+  if (name == "rt1") return makeTrackRun(rtSpec(name, 95, 12, Axis::kNone, 0, 0), chairRoomScene());
+  if (name == "rt2")
+    return makeTrackRun(rtSpec(name, 95, 12, Axis::kYaw, 10, 1.0 / 12), chairRoomScene());
+  if (name == "rt3")
+    return makeTrackRun(rtSpec(name, 42, 25, Axis::kPitch, 20, 1.0 / 12.6), chairRoomScene());
+  if (name == "rt4") return makeTrackRun(rtSpec(name, 42, 25, Axis::kNone, 0, 0), chairRoomScene());
+  if (name == "rt5")
+    return makeTrackRun(rtSpec(name, 95, 12, Axis::kYaw, 15, 1.0 / 24), chairRoomScene());
+  if (name == "rt6")
+    return makeTrackRun(rtSpec(name, 95, 12, Axis::kPitch, 15, 1.0 / 24), chairRoomScene());
+  if (name == "chair3") {
+    TruckRunSpec s;
+    s.name = name;
+    s.description =
+        "ServoTruck Chair3 (thesis 5.5.1): straight at the chair from 2.5 m, 1.5 m at 0.3 m/s";
+    s.start_xy_m = Eigen::Vector2d(2.16 - 2.5 - 0.12, 0.0);
+    s.segments = {{5.0, 0.30, 0.0}};
+    return makeTruckRun(s, chairRoomScene());
+  }
+  if (name == "room3") {
+    TruckRunSpec s;
+    s.name = name;
+    s.description =
+        "ServoTruck Room3 (thesis 5.5.2): two anti-clockwise laps of a 0.7 m radius circle at "
+        "0.3 m/s in a furnished room";
+    const double radius = 0.7, speed = 0.30;
+    s.start_xy_m = Eigen::Vector2d(0.0, -radius);
+    s.start_heading_rad = 0.0;
+    const double omega = speed / radius;
+    s.segments = {{2.0 * 2.0 * M_PI / omega, speed, omega}};
+    return makeTruckRun(s, furnishedRoomScene());
+  }
+  if (name == "hall1") {
+    TruckRunSpec s;
+    s.name = name;
+    s.description = "ServoTruck Hall1 (thesis 5.5.5): 8 m along a hallway at 0.3 m/s";
+    s.start_xy_m = Eigen::Vector2d(0.0, 0.0);
+    s.segments = {{8.0 / 0.30, 0.30, 0.0}};
+    return makeTruckRun(s, hallwayScene());
+  }
+  std::string known;
+  for (const auto& k : knownRuns()) known += (known.empty() ? "" : ", ") + k;
+  throw std::invalid_argument("unknown run '" + name + "' (known: " + known + ")");
+}
+
+}  // namespace sim
+}  // namespace depth_track
