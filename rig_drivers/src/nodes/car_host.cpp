@@ -1,0 +1,81 @@
+// car_host: ROS driver of the ServoTrack carriage board (CarDRV: pitch/yaw servos and sensors,
+// MPU6050, time-of-flight position). Publishes rig_msgs/CarriageSensors (30 Hz) and
+// rig_msgs/RawFrame; serves ~command, ~mode, ~vers, ~para, ~step (gimbal moves and waits of a
+// mode 2 sequence). Parameters: config/drivers.yaml.
+#include <rig_msgs/CarriageSensors.h>
+
+#include <atomic>
+#include <cmath>
+
+#include "board_host.hpp"
+
+using namespace rig_drivers;
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "car_host");
+  BoardHost host(protocol::BoardId::kCar, "car_host");
+  if (!host.configure()) return 1;
+  ros::Publisher pub = host.nh().advertise<rig_msgs::CarriageSensors>("carriage_sensors", 30);
+  std::atomic<double> pitch_deg{0.0}, yaw_deg{0.0}, tof_m{0.0};
+
+  auto publish_state = [&](const protocol::Frame& f, const ros::Time& stamp) {
+    protocol::CarSensorsPayload p;
+    if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return false;
+    rig_msgs::CarriageSensors m;
+    m.header.stamp = stamp;
+    m.header.frame_id = host.frameId();
+    m.pitch_dem_deg = p.pitch_dem_cdeg * 0.01f;
+    m.pitch_deg = p.pitch_cdeg * 0.01f;
+    m.yaw_dem_deg = p.yaw_dem_cdeg * 0.01f;
+    m.yaw_deg = p.yaw_cdeg * 0.01f;
+    m.acc_x_g = p.acc_x_mg * 1e-3f;
+    m.acc_y_g = p.acc_y_mg * 1e-3f;
+    m.acc_z_g = p.acc_z_mg * 1e-3f;
+    m.tf_pos_m = p.tof_mm * 1e-3f;
+    m.tf_valid = p.flags & protocol::CarSensorsPayload::kTofValid;
+    m.board_time_s = p.board_time_ms * 1e-3;
+    m.frame_seq = f.seq;
+    pitch_deg = m.pitch_deg;
+    yaw_deg = m.yaw_deg;
+    tof_m = m.tf_pos_m;
+    pub.publish(m);
+    return true;
+  };
+
+  auto step = [&](BoardLink& link, const rig_msgs::SequenceStep::Request& req,
+                  rig_msgs::SequenceStep::Response& res, double timeout_s) {
+    using Req = rig_msgs::SequenceStep::Request;
+    if (req.target == Req::TARGET_GIMBAL) {
+      // int16 centi-degrees on the wire: +-327 deg; the gimbal's own limits are the board's.
+      if (!std::isfinite(req.pitch_deg) || !std::isfinite(req.yaw_deg) ||
+          std::fabs(req.pitch_deg) > 180 || std::fabs(req.yaw_deg) > 180) {
+        res.success = false;
+        res.message = "gimbal step rejected: pitch_deg / yaw_deg must be finite and within +-180";
+        return;
+      }
+      protocol::CmdServo s;
+      s.pitch_cdeg = static_cast<std::int16_t>(std::lround(req.pitch_deg * 100));
+      s.yaw_cdeg = static_cast<std::int16_t>(std::lround(req.yaw_deg * 100));
+      s.flags = req.relative ? protocol::CmdServo::kRelative : 0;
+      fillStepResult(link.send(s, timeout_s, true, req.seq), res);
+    } else if (req.target == Req::TARGET_WAIT) {
+      if (!(req.wait_s >= 0 && req.wait_s < 3600)) {
+        res.success = false;
+        res.message = "wait step rejected: wait_s must be in [0, 3600) s";
+        return;
+      }
+      protocol::CmdWait w;
+      w.wait_ms = static_cast<std::uint32_t>(std::lround(req.wait_s * 1e3));
+      fillStepResult(link.send(w, timeout_s + req.wait_s, true, req.seq), res);
+    } else {
+      res.success = false;
+      res.message = "car_host executes TARGET_GIMBAL and TARGET_WAIT steps only (got target " +
+                    std::to_string(req.target) + ")";
+      return;
+    }
+    res.pitch_deg = pitch_deg;
+    res.yaw_deg = yaw_deg;
+    res.track_pos_m = tof_m;
+  };
+  return host.run(publish_state, step);
+}
