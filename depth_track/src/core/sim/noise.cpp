@@ -36,9 +36,11 @@ enum Stream : std::uint64_t {
   kNumStreams
 };
 
-/// Uniform in (0, 1) for (seed, pixel, stream).
-inline double uniform(std::uint64_t seed, std::size_t idx, Stream s) {
-  const std::uint64_t h = mix64(seed ^ mix64(static_cast<std::uint64_t>(idx) * kNumStreams + s));
+/// Uniform in (0, 1) for (seed, pixel, stream): element (pixel, stream) of the SplitMix64 sequence
+/// whose state starts at the mixed seed, so any draw is computed directly without order.
+inline double uniform(std::uint64_t seed_mixed, std::size_t idx, Stream s) {
+  const std::uint64_t counter = static_cast<std::uint64_t>(idx) * kNumStreams + s;
+  const std::uint64_t h = mix64(seed_mixed + counter * 0x9E3779B97F4A7C15ull);
   return (static_cast<double>(h >> 11) + 0.5) * (1.0 / 9007199254740992.0);
 }
 
@@ -211,6 +213,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
 
   const int w = clean.width, h = clean.height;
   const std::size_t n = static_cast<std::size_t>(w) * h;
+  seed = mix64(seed ^ 0x5DEECE66Dull);  // decorrelates neighbouring user seeds
   const std::vector<std::uint8_t> edge = edgeDistance(clean, c);
 
   // Speckle seeds, dilated into blobs below.
