@@ -1,0 +1,103 @@
+#pragma once
+/// Trajectory evaluation against ground truth (ROS-free core): the standard metrics (ATE RMSE
+/// after rigid alignment, RPE over one frame) and the thesis's style of result (ch. 5 tables
+/// 5.3/5.5/5.6: maximum absolute per-axis errors relative to the start pose, end-of-run drift).
+/// Trajectories are camera-to-world poses T_W_C. All functions are thread-safe.
+/// The numbers agree with the independent checkers shared/tools/eval_traj.py and pose_errors.py.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/tum_io.hpp"
+
+namespace depth_track {
+
+// ---- thesis Euler convention (§2.5, eq. 2.59)
+// ----------------------------------------------------- Eq. 2.59 writes the global-to-camera matrix
+// T_CG = Rz(-θz) Rx(-θx) Ry(-θy) (frame rotations, positive right-handed); its transpose is the
+// camera-to-world rotation used here:
+//   R_W_C = Ry(θy) Rx(θx) Rz(θz),   pitch θx about camera x, yaw θy about y, roll θz about z.
+// For small angles R_W_C ~ I + [θ]x (eq. 2.60), so the angles are the rotation vector to first
+// order. (The printed eq. 2.59 has a typo in element (2,1): it reads sinθy sinθx cosθz -
+// cosθx cosθz where the product above gives sinθy sinθx cosθz - sinθz cosθy.)
+
+/// Thesis angles (θx pitch, θy yaw, θz roll), radians, of a rotation R_W_C. θx in [-pi/2, pi/2],
+/// θy and θz in (-pi, pi]. At θx = +-pi/2 (gimbal lock) θz is set to 0.
+Eigen::Vector3d thesisEulerFromRotation(const Eigen::Matrix3d& R_W_C);
+
+/// R_W_C = Ry(θy) Rx(θx) Rz(θz) from thesis angles (θx pitch, θy yaw, θz roll) in radians.
+Eigen::Matrix3d rotationFromThesisEuler(const Eigen::Vector3d& theta_xyz_rad);
+
+// ---- metrics
+// ----------------------------------------------------------------------------------------
+
+/// Rigid transform T_gt_est (rotation + translation, no scale) minimising
+/// sum |T_gt_est p_est - p_gt|^2 (Horn / Umeyama closed form by SVD). Throws
+/// std::invalid_argument for lists of different length or fewer than 2 points.
+Eigen::Isometry3d alignRigid(const std::vector<Eigen::Vector3d>& p_est,
+                             const std::vector<Eigen::Vector3d>& p_gt);
+
+/// Standard metrics of associated pose pairs (equal-length lists, same order).
+struct AteRpe {
+  std::size_t frames = 0;
+  double ate_rmse_m = 0.0;  ///< RMS position error after alignRigid, metres
+  double ate_max_m = 0.0;   ///< largest aligned position error, metres
+  double rpe_1f_m = 0.0;    ///< RMS translation of the 1-frame relative pose error, metres
+  double rpe_1f_deg = 0.0;  ///< RMS rotation angle of the 1-frame relative pose error, degrees
+  Eigen::Isometry3d T_gt_est = Eigen::Isometry3d::Identity();  ///< the alignment used
+};
+
+/// ATE RMSE and RPE (1 frame). Throws std::invalid_argument for lists of different length or
+/// fewer than 2 poses.
+AteRpe computeAteRpe(const std::vector<Eigen::Isometry3d>& est_T_W_C,
+                     const std::vector<Eigen::Isometry3d>& gt_T_W_C);
+
+/// One frame's error, both trajectories taken relative to their first pose (the start camera
+/// frame S): T_S_C = T_W_C0^-1 T_W_C.
+struct FrameError {
+  Eigen::Vector3d rot_err_deg;    ///< rotation vector of R_gt^T R_est (about camera x, y, z), deg
+  Eigen::Vector3d pos_err_mm;     ///< t_est - t_gt in the start camera frame, mm
+  Eigen::Vector3d euler_est_deg;  ///< thesis angles (pitch, yaw, roll) of the estimate, deg
+  Eigen::Vector3d euler_gt_deg;   ///< thesis angles of the ground truth, deg
+  Eigen::Vector3d euler_err_deg;  ///< euler_est - euler_gt, wrapped to (-180, 180], deg
+};
+
+/// Per-frame errors of associated pose pairs, relative to the first pair. Throws
+/// std::invalid_argument for lists of different length or no poses.
+std::vector<FrameError> frameErrors(const std::vector<Eigen::Isometry3d>& est_T_W_C,
+                                    const std::vector<Eigen::Isometry3d>& gt_T_W_C);
+
+/// The thesis's table style: maximum absolute error per axis over the run.
+struct ThesisErrors {
+  std::size_t frames = 0;
+  Eigen::Vector3d max_err_deg = Eigen::Vector3d::Zero();  ///< max |rot_err_deg| per axis (x, y, z)
+  Eigen::Vector3d max_err_mm = Eigen::Vector3d::Zero();   ///< max |pos_err_mm| per axis
+  Eigen::Vector3d max_euler_err_deg = Eigen::Vector3d::Zero();  ///< max |euler_err_deg| per axis
+  double end_drift_mm = 0.0;                                    ///< |pos_err_mm| of the last frame
+};
+
+/// Thesis-style errors (pitch/yaw/roll and x/y/z maxima, end drift). Throws std::invalid_argument
+/// for lists of different length or fewer than 2 poses.
+ThesisErrors computeThesisErrors(const std::vector<Eigen::Isometry3d>& est_T_W_C,
+                                 const std::vector<Eigen::Isometry3d>& gt_T_W_C);
+
+/// Everything for an estimated trajectory against ground truth.
+struct TrajectoryEvaluation {
+  AteRpe standard;
+  ThesisErrors thesis;
+  std::size_t est_poses = 0;  ///< poses in the estimate before association
+};
+
+/// Associates est with gt by nearest stamp (max_gap_s, TUM: 0.02 s), then computes both metric
+/// sets. Throws std::invalid_argument when fewer than 2 poses associate.
+TrajectoryEvaluation evaluateTrajectory(const Trajectory& est, const Trajectory& gt,
+                                        double max_gap_s = 0.02);
+
+/// The two result lines in the checkers' format:
+/// "frames=N ate_rmse_m=X rpe_1f_m=Y" and
+/// "frames=N max_err_deg=a,b,c max_err_mm=x,y,z end_drift_mm=d".
+std::string formatEvaluation(const TrajectoryEvaluation& evaluation);
+
+}  // namespace depth_track

@@ -1,0 +1,211 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+#include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/tum_io.hpp"
+
+using namespace depth_track;
+
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+
+Eigen::Isometry3d pose(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = R;
+  T.translation() = t;
+  return T;
+}
+
+// Ground truth: a camera on a slow helix, yawing and pitching (deterministic formulas).
+Eigen::Isometry3d gtPose(double t) {
+  const Eigen::Matrix3d R = rotationFromThesisEuler(
+      Eigen::Vector3d(10 * kDeg * std::sin(0.7 * t), 40 * kDeg * t, 3 * kDeg * std::cos(1.3 * t)));
+  return pose(R, Eigen::Vector3d(0.5 * std::cos(0.5 * t), 0.3 * t, 0.5 * std::sin(0.5 * t)));
+}
+
+// Estimate: the ground truth seen from another world frame, with a growing error in the camera
+// frame (rotation and translation) as a tracker would accumulate.
+Eigen::Isometry3d estPose(double t, int i) {
+  const Eigen::Isometry3d T_Wother_W =
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0.2, -1.0, 0.4)), Eigen::Vector3d(1, -2, 3));
+  const Eigen::Isometry3d err = pose(
+      rotationFromThesisEuler(Eigen::Vector3d(
+          0.5 * kDeg * std::sin(i / 7.0), 1.2 * kDeg * i / 150.0, -0.3 * kDeg * std::cos(i / 5.0))),
+      Eigen::Vector3d(2e-4 * i, -5e-3 * std::sin(i / 9.0), 3e-3 * std::cos(i / 13.0)));
+  return T_Wother_W * gtPose(t) * err;
+}
+
+}  // namespace
+
+TEST(ThesisEuler, RoundTripAndConvention) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> pitch(-89.0, 89.0), other(-179.0, 179.0);
+  for (int i = 0; i < 200; ++i) {
+    const Eigen::Vector3d th(pitch(rng) * kDeg, other(rng) * kDeg, other(rng) * kDeg);
+    const Eigen::Matrix3d R = rotationFromThesisEuler(th);
+    EXPECT_NEAR(R.determinant(), 1.0, 1e-12);
+    const Eigen::Vector3d back = thesisEulerFromRotation(R);
+    EXPECT_LT((back - th).norm(), 1e-9) << th.transpose() / kDeg;
+
+    // Eq. 2.59 element by element (global-to-camera T_CG = R_W_C^T), with the typo in element
+    // (2,1) corrected to -sin(θz) cos(θy).
+    const double sx = std::sin(th.x()), cx = std::cos(th.x()), sy = std::sin(th.y()),
+                 cy = std::cos(th.y()), sz = std::sin(th.z()), cz = std::cos(th.z());
+    Eigen::Matrix3d T_CG;
+    T_CG << sy * sx * sz + cz * cy, cx * sz, cy * sx * sz - cz * sy,  //
+        sy * sx * cz - sz * cy, cx * cz, cy * sx * cz + sz * sy,      //
+        sy * cx, -sx, cy * cx;
+    EXPECT_LT((T_CG - R.transpose()).norm(), 1e-12);
+  }
+  // Small angles: R_W_C ~ I + [θ]x (transpose of eq. 2.60), error of second order.
+  const Eigen::Vector3d small(1e-3, -2e-3, 1.5e-3);
+  Eigen::Matrix3d lin = Eigen::Matrix3d::Identity();
+  lin(0, 1) = -small.z();
+  lin(0, 2) = small.y();
+  lin(1, 0) = small.z();
+  lin(1, 2) = -small.x();
+  lin(2, 0) = -small.y();
+  lin(2, 1) = small.x();
+  EXPECT_LT((rotationFromThesisEuler(small) - lin).cwiseAbs().maxCoeff(), 1e-5);
+  // Pure axes: positive pitch turns camera z (forward) towards -y (up in the optical frame).
+  const Eigen::Matrix3d Rp = rotationFromThesisEuler(Eigen::Vector3d(30 * kDeg, 0, 0));
+  EXPECT_NEAR((Rp * Eigen::Vector3d::UnitZ()).y(), -0.5, 1e-12);
+  // Gimbal lock: angles are not unique but the rotation is reproduced.
+  const Eigen::Matrix3d G =
+      rotationFromThesisEuler(Eigen::Vector3d(90 * kDeg, 20 * kDeg, 35 * kDeg));
+  EXPECT_LT((rotationFromThesisEuler(thesisEulerFromRotation(G)) - G).norm(), 1e-6);
+}
+
+TEST(Evaluation, AteOfARigidlyMovedCopyIsZero) {
+  std::vector<Eigen::Isometry3d> gt, est;
+  const Eigen::Isometry3d T_other_W =
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0.3, 2.0, -0.7)), Eigen::Vector3d(5, -1, 2));
+  for (int i = 0; i < 100; ++i) {
+    gt.push_back(gtPose(i / 30.0));
+    est.push_back(T_other_W * gt.back());
+  }
+  const AteRpe r = computeAteRpe(est, gt);
+  EXPECT_EQ(r.frames, 100u);
+  EXPECT_LT(r.ate_rmse_m, 1e-9);
+  EXPECT_LT(r.rpe_1f_m, 1e-9);
+  EXPECT_LT(r.rpe_1f_deg, 1e-6);
+  EXPECT_TRUE((r.T_gt_est * T_other_W).matrix().isIdentity(1e-9));  // alignment undoes the move
+  const ThesisErrors t = computeThesisErrors(est, gt);
+  EXPECT_LT(t.max_err_deg.maxCoeff(), 1e-6);
+  EXPECT_LT(t.max_err_mm.maxCoeff(), 1e-6);
+  EXPECT_LT(t.end_drift_mm, 1e-6);
+}
+
+TEST(Evaluation, HandComputedAte) {
+  // Ground truth on a cross in the x-y plane; the estimate lifts the x-axis points by +d and
+  // drops the y-axis points by -d. No rotation or translation can reduce that (a rotation about
+  // x or y would move one point of a pair up and the other down; the mean offset is 0), so the
+  // aligned error is d at every point: ATE = d.
+  const double d = 0.01;
+  const std::vector<Eigen::Vector3d> g = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}};
+  std::vector<Eigen::Isometry3d> gt, est;
+  for (int i = 0; i < 4; ++i) {
+    gt.push_back(pose(Eigen::Matrix3d::Identity(), g[i]));
+    est.push_back(pose(Eigen::Matrix3d::Identity(), g[i] + Eigen::Vector3d(0, 0, i < 2 ? d : -d)));
+  }
+  const AteRpe r = computeAteRpe(est, gt);
+  EXPECT_NEAR(r.ate_rmse_m, d, 1e-12);
+  EXPECT_NEAR(r.ate_max_m, d, 1e-12);
+  // RPE by hand: steps 0->1 and 2->3 match (both lifted alike), step 1->2 is off by 2 d in z:
+  // sqrt((0 + (2d)^2 + 0) / 3).
+  EXPECT_NEAR(r.rpe_1f_m, std::sqrt(4 * d * d / 3), 1e-12);
+  EXPECT_THROW(computeAteRpe({gt[0]}, {gt[0]}), std::invalid_argument);
+  EXPECT_THROW(computeAteRpe(est, {gt[0], gt[1]}), std::invalid_argument);
+}
+
+TEST(Evaluation, HandComputedThesisErrors) {
+  // The camera starts yawed 90 degrees in the world and drives 1 m forward along its own z in
+  // 3 frames. The estimate lives in another world frame, is 1 cm off sideways (camera x) at
+  // frame 2, and 2 degrees off in yaw at frame 3. By hand, in the start camera frame:
+  //   frame 2: position error (+10, 0, 0) mm; frame 3: rotation error (0, 2, 0) deg, no
+  //   position error -> max_err_mm = (10, 0, 0), max_err_deg = (0, 2, 0), end drift 0 mm.
+  const Eigen::Matrix3d R0 = rotationFromThesisEuler(Eigen::Vector3d(0, 90 * kDeg, 0));
+  std::vector<Eigen::Isometry3d> gt, est;
+  const Eigen::Isometry3d T_other_W =
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0.1, 0.2, 0.3)), Eigen::Vector3d(-4, 1, 0.5));
+  for (int i = 0; i < 4; ++i) {
+    const Eigen::Isometry3d g = pose(R0, R0 * Eigen::Vector3d(0, 0, i / 3.0));
+    Eigen::Isometry3d e = g;
+    if (i == 2) e.translation() += R0 * Eigen::Vector3d(0.01, 0, 0);
+    if (i == 3) e.linear() = R0 * rotationFromThesisEuler(Eigen::Vector3d(0, 2 * kDeg, 0));
+    gt.push_back(g);
+    est.push_back(T_other_W * e);
+  }
+  const ThesisErrors t = computeThesisErrors(est, gt);
+  EXPECT_EQ(t.frames, 4u);
+  EXPECT_LT((t.max_err_mm - Eigen::Vector3d(10, 0, 0)).norm(), 1e-9);
+  EXPECT_LT((t.max_err_deg - Eigen::Vector3d(0, 2, 0)).norm(), 1e-9);
+  EXPECT_LT((t.max_euler_err_deg - Eigen::Vector3d(0, 2, 0)).norm(), 1e-9);
+  EXPECT_NEAR(t.end_drift_mm, 0.0, 1e-9);
+  const auto f = frameErrors(est, gt);
+  EXPECT_NEAR(f[3].euler_gt_deg.y(), 0.0, 1e-9);  // relative to the start pose
+  EXPECT_NEAR(f[3].euler_est_deg.y(), 2.0, 1e-9);
+}
+
+TEST(Evaluation, ThesisEulerErrorsWrapAround) {
+  // Ground truth yaws to 179 degrees, the estimate to -179: 2 degrees apart, not 358.
+  std::vector<Eigen::Isometry3d> gt = {Eigen::Isometry3d::Identity()},
+                                 est = {Eigen::Isometry3d::Identity()};
+  gt.push_back(
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0, 179 * kDeg, 0)), Eigen::Vector3d::Zero()));
+  est.push_back(
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0, -179 * kDeg, 0)), Eigen::Vector3d::Zero()));
+  const ThesisErrors t = computeThesisErrors(est, gt);
+  EXPECT_NEAR(t.max_euler_err_deg.y(), 2.0, 1e-9);
+  EXPECT_NEAR(t.max_err_deg.y(), 2.0, 1e-9);
+}
+
+TEST(Evaluation, AgreesWithTheIndependentPythonCheckers) {
+  // Ground truth at 100 Hz; the estimate at 30 Hz with stamps 3 ms off, plus 10 estimate stamps
+  // past the end of the ground truth (must not associate). Written as TUM files, read back, and
+  // evaluated. The expected numbers are what shared/tools/eval_traj.py and pose_errors.py (their
+  // rgbd_sequence.py functions) computed for the same two files, run by hand with
+  // /usr/bin/python3 when this test was written.
+  Trajectory gt, est;
+  for (int i = 0; i < 520; ++i) gt.push_back({1000.0 + i * 0.01, gtPose(i * 0.01)});
+  for (int i = 0; i < 160; ++i) {
+    const double t = i / 30.0 + 0.003;
+    est.push_back({1000.0 + t, estPose(t, i)});
+  }
+  const std::string dir = testing::TempDir();
+  writeTumTrajectory(dir + "dt_eval_gt.txt", gt);
+  writeTumTrajectory(dir + "dt_eval_est.txt", est);
+  const TrajectoryEvaluation e = evaluateTrajectory(readTumTrajectory(dir + "dt_eval_est.txt"),
+                                                    readTumTrajectory(dir + "dt_eval_gt.txt"));
+  std::printf("%s\n", formatEvaluation(e).c_str());
+  EXPECT_EQ(e.est_poses, 160u);
+  // 3 estimate stamps lie more than 20 ms past the last ground truth.
+  EXPECT_EQ(e.standard.frames, 157u);
+  EXPECT_EQ(e.thesis.frames, 157u);
+  // The checkers' values printed to 9+ digits (their own functions, more decimals). Both read
+  // the same files; the checker uses the 9-decimal quaternions as they are, this code normalises
+  // them, so rotations differ by ~1e-9 (6e-8 deg) and positions by ~1e-9 x the 4 m lever arm
+  // of the world offset (4e-6 mm): tolerances 1e-6 deg and 1e-5 mm.
+  EXPECT_NEAR(e.standard.ate_rmse_m, 0.01166826011791886, 1e-10);
+  EXPECT_NEAR(e.standard.rpe_1f_m, 0.0019764502692034684, 1e-10);
+  EXPECT_NEAR(e.thesis.max_err_deg.x(), 0.782603911, 1e-6);
+  EXPECT_NEAR(e.thesis.max_err_deg.y(), 1.663846572, 1e-6);
+  EXPECT_NEAR(e.thesis.max_err_deg.z(), 0.596968255, 1e-6);
+  EXPECT_NEAR(e.thesis.max_err_mm.x(), 38.352915959, 1e-5);
+  EXPECT_NEAR(e.thesis.max_err_mm.y(), 9.237638991, 1e-5);
+  EXPECT_NEAR(e.thesis.max_err_mm.z(), 22.113321880, 1e-5);
+  EXPECT_NEAR(e.thesis.end_drift_mm, 39.111398201, 1e-5);
+  // And the checkers' own output lines, character for character.
+  EXPECT_EQ(formatEvaluation(e),
+            "frames=157 ate_rmse_m=0.0117 rpe_1f_m=0.0020\n"
+            "frames=157 max_err_deg=0.783,1.664,0.597 max_err_mm=38.35,9.24,22.11 "
+            "end_drift_mm=39.11");
+
+  EXPECT_THROW(evaluateTrajectory(est, Trajectory(gt.begin(), gt.begin() + 1)),
+               std::invalid_argument);
+}
