@@ -1,11 +1,15 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
 #include <random>
 #include <stdexcept>
 #include <string>
 
 #include "depth_track/core/prefilter.hpp"
+#include "depth_track/core/tum_io.hpp"
 
 using namespace depth_track;
 
@@ -288,4 +292,31 @@ TEST(Prefilter, SeparableApproximationSmoothsLikeTheFullKernel) {
     }
   EXPECT_LT(max_diff, 0.25 * sigma_n);
   EXPECT_LT(std::sqrt(sum2 / n), 0.1 * sigma_n);
+}
+
+TEST(Prefilter, TeddyFrameStaysWithinTheDepthCutoff) {
+  const std::string list =
+      std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy/depth.txt";
+  if (!std::ifstream(list)) GTEST_SKIP() << "shared teddy data not found: " << list;
+  const DepthImage d =
+      loadTumDepth(readTumFrameList(list).front().path, 1.0 / 5000.0, DepthRange{0.1, 10.0});
+  PrefilterConfig c;
+  c.type = PrefilterType::kBilateral;  // the thesis's fig. 5.1 parameters
+  const DepthImage f = applyPrefilter(d, c, 2);
+  // Each output is a weighted mean of neighbours within cutoff * sigma_d of the centre, so no
+  // pixel can move further than that (0.15 m): real occluding edges stay where they are.
+  const double bound = c.depth_cutoff_sigmas * c.depth_sigma_m;
+  std::vector<float> moved;
+  for (std::size_t i = 0; i < d.data.size(); ++i) {
+    ASSERT_EQ(f.data[i] > 0.0f, d.data[i] > 0.0f) << "pixel " << i;
+    if (d.data[i] > 0.0f) {
+      EXPECT_LE(std::abs(f.data[i] - d.data[i]), bound + 1e-5) << "pixel " << i;
+      moved.push_back(std::abs(f.data[i] - d.data[i]));
+    }
+  }
+  std::nth_element(moved.begin(), moved.begin() + moved.size() / 2, moved.end());
+  // A typical pixel moves by about the sensor noise (Kinect ~1.42e-3 z^2 = 6.3 mm at 2.1 m).
+  EXPECT_LT(moved[moved.size() / 2], 1.42e-3 * 2.1 * 2.1);
+  std::printf("teddy frame 0, bilateral 31/15px/0.05m: median |change| %.2f mm\n",
+              1e3 * moved[moved.size() / 2]);
 }
