@@ -155,3 +155,38 @@ TEST(RenderedRuns, FramesAreReproducible) {
   EXPECT_EQ(a.data, b.data);
   EXPECT_THROW(run.renderFrame(run.size(), l515, 7), std::out_of_range);
 }
+
+TEST(RenderedRuns, RawFramesUseTheSensorUnit) {
+  const RenderedRun run = makeRun("rt1");
+  const NoiseConfig l515 = NoiseConfig::forModel(NoiseModel::kL515);
+  const RawDepth16 raw = run.renderFrameRaw(10, l515, 3);
+  EXPECT_EQ(raw.depth_scale_m, 0.00025);
+  const DepthImage metres = run.renderFrame(10, l515, 3);
+  ASSERT_EQ(raw.data.size(), metres.data.size());
+  for (std::size_t i = 0; i < raw.data.size(); ++i)
+    ASSERT_NEAR(raw.data[i] * raw.depth_scale_m, metres.data[i], 1e-6);  // float storage only
+}
+
+TEST(RenderedRuns, BadSpecsAreNamed) {
+  TrackRunSpec t;
+  t.name = "bad track";
+  t.duration_s = -1.0;
+  t.axis = TrackRunSpec::Axis::kPitch;
+  t.amplitude_deg = 90.0;
+  try {
+    makeTrackRun(t, chairRoomScene());
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("bad track"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("duration_s"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("amplitude_deg"), std::string::npos) << msg;
+  }
+  TruckRunSpec s;
+  s.name = "bad truck";
+  s.camera_height_m = 0.0;
+  EXPECT_EQ(s.validate().size(), 2u);  // height and no segments
+  s.camera_height_m = 0.3;
+  s.segments = {{0.0, 0.3, 0.0}};
+  EXPECT_THROW(makeTruckRun(s, hallwayScene()), std::invalid_argument);
+}

@@ -115,9 +115,11 @@ NoiseConfig NoiseConfig::forModel(NoiseModel model) {
       c.edge_band_px = 4;
       c.edge_dropout_prob = 0.5;
       c.edge_bleed_prob = 0.5;  // false readings extending outwards from edges (thesis fig. 4.18)
-      c.speckle_prob = 0.002;
+      // About 2 % of pixels lost to speckle blobs and 0.2 % singly: a fill rate near 95 % on
+      // plain surfaces once edges are counted.
+      c.speckle_prob = 0.0008;
       c.speckle_radius_px = 2;
-      c.random_dropout_prob = 0.005;
+      c.random_dropout_prob = 0.002;
       c.quantum_m = 0.001;
       break;
   }

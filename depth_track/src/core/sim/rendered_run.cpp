@@ -26,6 +26,11 @@ DepthImage RenderedRun::renderFrame(std::size_t i, const NoiseConfig& noise, std
   return applyNoise(clean, noise, frameSeed(run_seed, i), range);
 }
 
+RawDepth16 RenderedRun::renderFrameRaw(std::size_t i, const NoiseConfig& noise,
+                                       std::uint64_t run_seed, int threads) const {
+  return toRaw16(renderFrame(i, noise, run_seed, threads), nativeDepthScale(noise.model));
+}
+
 std::vector<std::string> TrackRunSpec::validate() const {
   std::vector<std::string> p;
   if (name.empty()) p.push_back("run name is empty");

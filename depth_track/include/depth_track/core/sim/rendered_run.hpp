@@ -43,6 +43,10 @@ struct RenderedRun {
   /// bad index. Thread-safe.
   DepthImage renderFrame(std::size_t i, const NoiseConfig& noise, std::uint64_t run_seed,
                          int threads = 0) const;
+  /// renderFrame encoded as a 16UC1 buffer in the noise model's native unit
+  /// (nativeDepthScale(noise.model): L515 0.25 mm, D435 1 mm, none 0.2 mm). Thread-safe.
+  RawDepth16 renderFrameRaw(std::size_t i, const NoiseConfig& noise, std::uint64_t run_seed,
+                            int threads = 0) const;
 };
 
 /// Parameters of a ServoTrack run: still frames, then either stepped motion (Mode 2: one
