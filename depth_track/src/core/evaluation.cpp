@@ -108,19 +108,50 @@ AteRpe computeAteRpe(const std::vector<Eigen::Isometry3d>& est,
   }
   r.ate_rmse_m = std::sqrt(sum2 / pe.size());
 
+  std::vector<std::pair<std::size_t, std::size_t>> steps;
+  for (std::size_t i = 0; i + 1 < est.size(); ++i) steps.emplace_back(i, i + 1);
+  const RelativeError rpe = relativePoseError(est, gt, steps);
+  r.rpe_1f_m = rpe.rms_m;
+  r.rpe_1f_deg = rpe.rms_deg;
+  return r;
+}
+
+RelativeError relativePoseError(const std::vector<Eigen::Isometry3d>& est,
+                                const std::vector<Eigen::Isometry3d>& gt,
+                                const std::vector<std::pair<std::size_t, std::size_t>>& pairs) {
+  checkPairs(est.size(), gt.size(), 0, "relative pose error");
+  RelativeError r;
   double t2 = 0.0, a2 = 0.0;
-  for (std::size_t i = 0; i + 1 < est.size(); ++i) {
-    const Eigen::Isometry3d d_est = est[i].inverse() * est[i + 1];
-    const Eigen::Isometry3d d_gt = gt[i].inverse() * gt[i + 1];
-    const Eigen::Isometry3d E = d_gt.inverse() * d_est;
+  for (const auto& [i, j] : pairs) {
+    if (i >= est.size() || j >= est.size()) {
+      throw std::invalid_argument("relative pose error: pair (" + std::to_string(i) + ", " +
+                                  std::to_string(j) + ") outside " + std::to_string(est.size()) +
+                                  " poses");
+    }
+    const Eigen::Isometry3d E = (gt[i].inverse() * gt[j]).inverse() * (est[i].inverse() * est[j]);
     t2 += E.translation().squaredNorm();
     const double a = Eigen::AngleAxisd(E.rotation()).angle() * kRadToDeg;
     a2 += a * a;
+    ++r.pairs;
   }
-  const double m = static_cast<double>(est.size() - 1);
-  r.rpe_1f_m = std::sqrt(t2 / m);
-  r.rpe_1f_deg = std::sqrt(a2 / m);
+  if (r.pairs > 0) {
+    r.rms_m = std::sqrt(t2 / r.pairs);
+    r.rms_deg = std::sqrt(a2 / r.pairs);
+  }
   return r;
+}
+
+std::vector<std::pair<std::size_t, std::size_t>> pairsOverTime(const std::vector<double>& stamps,
+                                                               double delta_s) {
+  std::vector<std::pair<std::size_t, std::size_t>> pairs;
+  std::size_t j = 0;
+  for (std::size_t i = 0; i < stamps.size(); ++i) {
+    j = std::max(j, i + 1);
+    while (j < stamps.size() && stamps[j] < stamps[i] + delta_s - 1e-6) ++j;
+    if (j >= stamps.size()) break;
+    pairs.emplace_back(i, j);
+  }
+  return pairs;
 }
 
 std::vector<FrameError> frameErrors(const std::vector<Eigen::Isometry3d>& est,
@@ -170,6 +201,7 @@ TrajectoryEvaluation evaluateTrajectory(const Trajectory& est, const Trajectory&
   TrajectoryEvaluation e;
   e.est_poses = est.size();
   e.standard = computeAteRpe(a.est_T_W_C, a.gt_T_W_C);
+  e.rpe_1s = relativePoseError(a.est_T_W_C, a.gt_T_W_C, pairsOverTime(a.stamps_s, 1.0));
   e.thesis = computeThesisErrors(a.est_T_W_C, a.gt_T_W_C);
   return e;
 }

@@ -209,3 +209,28 @@ TEST(Evaluation, AgreesWithTheIndependentPythonCheckers) {
   EXPECT_THROW(evaluateTrajectory(est, Trajectory(gt.begin(), gt.begin() + 1)),
                std::invalid_argument);
 }
+
+TEST(Evaluation, RelativeErrorOverOneSecond) {
+  // The camera slides along world x at 0.5 m/s; the estimate drifts sideways at 1 cm/s. By
+  // hand: every 1 s pair is off by exactly 1 cm, every 1-frame pair by 1/30 cm; 3 s at 30 Hz
+  // (91 poses) leave 61 poses with a partner 1 s later.
+  Trajectory gt, est;
+  for (int i = 0; i <= 90; ++i) {
+    const double t = 50.0 + i / 30.0;
+    gt.push_back({t, pose(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.5 * (t - 50.0), 0, 0))});
+    est.push_back({t, pose(Eigen::Matrix3d::Identity(),
+                           Eigen::Vector3d(0.5 * (t - 50.0), 0.01 * (t - 50.0), 0))});
+  }
+  const TrajectoryEvaluation e = evaluateTrajectory(est, gt);
+  EXPECT_EQ(e.rpe_1s.pairs, 61u);
+  EXPECT_NEAR(e.rpe_1s.rms_m, 0.01, 1e-9);
+  EXPECT_NEAR(e.rpe_1s.rms_deg, 0.0, 1e-9);
+  EXPECT_NEAR(e.standard.rpe_1f_m, 0.01 / 30.0, 1e-9);
+  const auto pairs = pairsOverTime({0.0, 0.4, 0.9, 1.0, 1.6, 2.1}, 1.0);
+  ASSERT_EQ(pairs.size(), 4u);
+  EXPECT_EQ(pairs[0], std::make_pair(std::size_t{0}, std::size_t{3}));  // exactly 1 s
+  EXPECT_EQ(pairs[1], std::make_pair(std::size_t{1}, std::size_t{4}));  // first >= 1.4
+  EXPECT_EQ(pairs[2], std::make_pair(std::size_t{2}, std::size_t{5}));
+  EXPECT_EQ(pairs[3], std::make_pair(std::size_t{3}, std::size_t{5}));
+  EXPECT_THROW(relativePoseError({}, {}, {{0, 1}}), std::invalid_argument);
+}

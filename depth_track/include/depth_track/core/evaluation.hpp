@@ -54,6 +54,25 @@ struct AteRpe {
 AteRpe computeAteRpe(const std::vector<Eigen::Isometry3d>& est_T_W_C,
                      const std::vector<Eigen::Isometry3d>& gt_T_W_C);
 
+/// Relative pose error over chosen index pairs (i, j): E = (gt_i^-1 gt_j)^-1 (est_i^-1 est_j).
+struct RelativeError {
+  std::size_t pairs = 0;
+  double rms_m = 0.0;    ///< RMS of |translation of E|, metres
+  double rms_deg = 0.0;  ///< RMS of the rotation angle of E, degrees
+};
+
+/// RPE over the given pairs of indices into the associated lists. Throws std::invalid_argument
+/// for lists of different length or an index out of range; no pairs gives zeros.
+RelativeError relativePoseError(const std::vector<Eigen::Isometry3d>& est_T_W_C,
+                                const std::vector<Eigen::Isometry3d>& gt_T_W_C,
+                                const std::vector<std::pair<std::size_t, std::size_t>>& pairs);
+
+/// Index pairs (i, j) with j the first pose at least delta_s after pose i (stamps in time
+/// order; 1 us slack for stamps stored with 6 decimals). Poses less than delta_s before the end
+/// get no pair.
+std::vector<std::pair<std::size_t, std::size_t>> pairsOverTime(const std::vector<double>& stamps_s,
+                                                               double delta_s);
+
 /// One frame's error, both trajectories taken relative to their first pose (the start camera
 /// frame S): T_S_C = T_W_C0^-1 T_W_C.
 struct FrameError {
@@ -86,6 +105,7 @@ ThesisErrors computeThesisErrors(const std::vector<Eigen::Isometry3d>& est_T_W_C
 /// Everything for an estimated trajectory against ground truth.
 struct TrajectoryEvaluation {
   AteRpe standard;
+  RelativeError rpe_1s;  ///< RPE over 1 s (TUM's second standard RPE)
   ThesisErrors thesis;
   std::size_t est_poses = 0;  ///< poses in the estimate before association
 };
