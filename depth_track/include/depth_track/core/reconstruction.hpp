@@ -29,12 +29,13 @@ struct ReconstructionConfig {
 
 /// Renders the depth (metres, camera optical frame) of every pixel of every kept cell as the
 /// intersection of the pixel's viewing ray with the cell's plane {p : normal_C . (p - mean_C) =
-/// 0}. Pixels of pruned cells, of cells with a non-finite mean or normal, and guarded pixels
-/// (see ReconstructionConfig) are 0. The thesis interpolates linearly between the depths at the
-/// cell corners (eq. 3.11-3.13); intersecting each ray is exact for a tilted plane, where depth
-/// is not linear in pixel coordinates. Throws DepthInputError when the cell grid does not fit
-/// the intrinsics' image or the intrinsics are invalid, std::invalid_argument for a bad config.
-/// Thread-safe.
+/// 0}. Uses each cell's gx, gy, mean_C, normal_C and cov(2,2) (the span guard); cells from
+/// reduceToCells have all of them. Pixels of pruned cells, of cells with a non-finite mean,
+/// normal or cov(2,2), and guarded pixels (see ReconstructionConfig) are 0. The thesis interpolates
+/// linearly between the depths at the cell corners (eq. 3.11-3.13); intersecting each ray is exact
+/// for a tilted plane, where depth is not linear in pixel coordinates. Throws DepthInputError when
+/// the cell grid does not fit the intrinsics' image or the intrinsics are invalid,
+/// std::invalid_argument for a bad config. Thread-safe.
 DepthImage reconstructDepth(const CellCloud& cells, const PinholeIntrinsics& intrinsics,
                             const ReconstructionConfig& config = ReconstructionConfig());
 
