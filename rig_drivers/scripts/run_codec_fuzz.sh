@@ -37,13 +37,15 @@ write_result() {  # $1 = pass|fail, $2 = message
 }
 
 T0=$(date +%s)
-CXX=$(command -v clang++-14 || command -v clang++ || true)
-if [ -z "$CXX" ]; then
+CXX=${RIG_FUZZ_CXX:-$(command -v clang++-14 || command -v clang++ || true)}
+if [ -z "$CXX" ] || ! [ -x "$(command -v "$CXX")" ]; then
   write_result fail "clang++-14 not found: install clang-14 libclang-rt-14-dev (catkin_ws_setup.sh)"
 fi
 BIN="$WORK/fuzz_codec"
 if ! "$CXX" -std=c++17 -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined \
     -I"$HERE/include" "$HERE/test/protocol/fuzz_codec.cpp" "$HERE/src/protocol/codec.cpp" \
+    "$HERE/src/protocol/firmware.cpp" "$HERE/src/protocol/track_drv.cpp" \
+    "$HERE/src/protocol/car_drv.cpp" "$HERE/src/protocol/truck_drv.cpp" \
     -o "$BIN" >>"$LOG" 2>&1; then
   write_result fail "fuzzer build failed with $CXX"
 fi
@@ -64,6 +66,15 @@ seeds = {
 }
 for name, data in seeds.items():
     open(os.path.join(sys.argv[1], "seed_" + name), "wb").write(b"\x05" + data)
+# structured seeds (first byte bit 7): records [id, length, payload] encoded with valid CRCs
+def rec(mid, payload=b""):
+    return bytes([mid, len(payload)]) + payload
+session = (rec(0x02, b"\x02") + rec(0x01) + rec(0x10, struct.pack("<iBHH", 500000, 0, 200, 400)) +
+           rec(0x04) + rec(0x10, struct.pack("<iBHH", 10000, 1, 0, 0)) + rec(0x11, struct.pack("<hhB", 1500, -700, 0)) +
+           rec(0x12, struct.pack("<I", 1234)) + rec(0x13, struct.pack("<I", 40)) + rec(0x07) + rec(0x08) +
+           rec(0x05) + rec(0x03) + rec(0x06))
+open(os.path.join(sys.argv[1], "seed_structured"), "wb").write(b"\x83" + session)
+open(os.path.join(sys.argv[1], "seed_structured_garbage"), "wb").write(b"\xc7" + session)
 PY
 if "$BIN" -max_total_time="$SECS" -timeout=5 -rss_limit_mb=1024 -max_len=512 \
     -artifact_prefix="$WORK/" "$CORPUS" >>"$LOG" 2>&1; then
