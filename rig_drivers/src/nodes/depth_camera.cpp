@@ -310,7 +310,7 @@ class DepthCameraNode {
     pnh.param("device_depth_scale_m", device_scale_m, 0.00025);
     pnh.param<std::string>("scene", scene, "chair_room");
     pnh.param<std::string>("noise", noise, "l515");
-    pnh.param<std::string>("pose_topic", pose_topic, "/sim/camera_pose");
+    pnh.param<std::string>("pose_topic", pose_topic, "/rig_sim/camera_pose");
     pnh.param("seed", seed, 1);
     pnh.param<std::string>("tum_folder", tum_folder, "");
     pnh.param("tum_depth_scale_m", tum_scale_m, 1.0 / 5000.0);
