@@ -91,7 +91,8 @@ struct SimCameraFrame {
 
 /// Bytes of one complete frame on a link, at the time they arrived at the other end.
 struct SimLinkFrame {
-  double t_s = 0.0;                                    ///< arrival time, s
+  double t_s = 0.0;       ///< arrival time at the other end, s
+  double sent_t_s = 0.0;  ///< time the sender wrote it (a board samples in that loop), s
   protocol::BoardId board = protocol::BoardId::kHost;  ///< board of the link
   bool outgoing = false;                               ///< true = host -> board
   std::vector<uint8_t> bytes;
@@ -125,8 +126,10 @@ class RigSimulator {
   std::vector<SimCameraFrame> takeCameraFrames();
   /// Exact state now.
   RigTruth truth() const;
-  /// True when the scenario's last frame has been taken (scripted host / autopilot).
+  /// True when the scenario's last frame has been taken (scripted host / autopilot), or it failed.
   bool finished() const;
+  /// True when a board refused or aborted one of the scripted host's commands (see takeEvents).
+  bool failed() const;
   /// Camera frames taken so far.
   int framesTaken() const;
   const Scenario& scenario() const { return scenario_; }

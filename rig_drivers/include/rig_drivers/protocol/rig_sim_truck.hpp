@@ -16,8 +16,8 @@ struct TruckModelConfig {
   double speed_time_constant_s = 0.35;  ///< drive (motor + inertia) first-order lag, s
   double max_speed_mps = 1.0;           ///< thesis 4.3.1 constraint 2.3, m/s
   double speed_scale_error = 0.04;      ///< true speed / calibrated speed - 1 (calibration error)
-  double camera_forward_m = 0.22;       ///< optical centre ahead of the rear axle, m
-  double camera_height_m = 0.30;        ///< optical centre above the floor, m
+  double camera_forward_m = 0.12;       ///< optical centre ahead of the rear axle, m
+  double camera_height_m = 0.35;        ///< optical centre above the floor, m
   double camera_pitch_deg = 0.0;        ///< camera nose-up tilt, degrees
   /// Every problem with this configuration (empty = valid).
   std::vector<std::string> validate() const;
