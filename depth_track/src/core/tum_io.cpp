@@ -22,6 +22,10 @@ namespace {
 // ---- libpng plumbing ----------------------------------------------------------------------------
 // libpng reports errors by longjmp. Every C++ object of the functions below is constructed before
 // setjmp, and the message is copied into a plain buffer, so the jump skips no destructor.
+// Refuse absurd header sizes before allocating (a corrupt or hostile file); 256 Mpx is far
+// beyond any depth camera.
+constexpr unsigned long long kMaxPixels = 1ull << 28;
+
 struct PngErrorBuffer {
   char message[256] = {0};
 };
@@ -153,8 +157,13 @@ std::vector<std::uint16_t> readPng16(const std::string& path, int* width, int* h
     if (bit_depth != 16 || colour_type != PNG_COLOR_TYPE_GRAY) {
       std::snprintf(found, sizeof(found), "%d-bit %s", bit_depth, colourTypeName(colour_type));
       status = 2;
+    } else if (static_cast<unsigned long long>(w) * h > kMaxPixels) {
+      std::snprintf(found, sizeof(found), "a %lux%lu image (more than %llu pixels)",
+                    static_cast<unsigned long>(w), static_cast<unsigned long>(h), kMaxPixels);
+      status = 2;
     } else {
       if (hostIsLittleEndian()) png_set_swap(png);  // PNG stores 16-bit samples big-endian
+      png_set_interlace_handling(png);              // Adam7 files are read whole as well
       png_read_update_info(png, info);
       pixels.resize(static_cast<std::size_t>(w) * h);
       rows.resize(h);
