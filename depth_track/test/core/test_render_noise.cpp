@@ -214,3 +214,41 @@ TEST(RenderNoise, NoneIsExactAndBadConfigIsNamed) {
   EXPECT_THROW(applyNoise(broken, NoiseConfig::forModel(NoiseModel::kL515), 1, DepthRange{}),
                DepthInputError);
 }
+
+// Grazing drop-outs: never above the threshold angle's cosine, and below it at the rate of the
+// linear ramp (count within 5 binomial standard deviations of its expectation).
+TEST(RenderNoise, GrazingDropoutsFollowTheIncidenceRamp) {
+  Scene s;
+  s.name = "floor";
+  s.addRectangle(Eigen::Vector3d(10, 0, 0), Eigen::Vector3d::UnitZ(), 20, 20, "floor",
+                 Eigen::Vector3d::UnitX());
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = rotationBodyFromOptical();
+  T.translation() = Eigen::Vector3d(0, 0, 0.3);  // a truck-height camera, level
+  const DepthRange range{0.1, 8.0};
+  const RenderedDepth r = renderDepthWithIncidence(s, l515Intrinsics(), T, range);
+  NoiseConfig c;  // grazing only, so nothing else removes pixels
+  c.grazing_cos = NoiseConfig::forModel(NoiseModel::kL515).grazing_cos;
+  c.grazing_dropout_prob = 1.0;
+  const DepthImage noisy = applyNoise(r.depth, c, 5, range, &r.cos_incidence);
+  double expected = 0.0, var = 0.0;
+  std::size_t dropped = 0, low = 0;
+  for (std::size_t i = 0; i < noisy.data.size(); ++i) {
+    if (r.depth.data[i] == 0.0f) continue;
+    const double ci = r.cos_incidence[i];
+    const bool lost = noisy.data[i] == 0.0f;
+    if (ci >= c.grazing_cos) {
+      ASSERT_FALSE(lost) << "pixel " << i << " dropped at cos " << ci;
+      continue;
+    }
+    ++low;
+    const double p = 1.0 - ci / c.grazing_cos;
+    expected += p;
+    var += p * (1.0 - p);
+    dropped += lost;
+  }
+  ASSERT_GT(low, 10000u);  // a level camera 0.3 m up sees the floor beyond 80 deg from 1.7 m on
+  EXPECT_NEAR(static_cast<double>(dropped), expected, 5.0 * std::sqrt(var));
+  const std::vector<float> short_incidence(10, 1.0f);
+  EXPECT_THROW(applyNoise(r.depth, c, 5, range, &short_incidence), DepthInputError);
+}

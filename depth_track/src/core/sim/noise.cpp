@@ -33,6 +33,7 @@ enum Stream : std::uint64_t {
   kBleed,
   kSpeckle,
   kRandomDrop,
+  kGrazing,
   kNumStreams
 };
 
@@ -104,6 +105,10 @@ NoiseConfig NoiseConfig::forModel(NoiseModel model) {
       c.edge_band_px = 2;
       c.edge_dropout_prob = 0.9;
       c.random_dropout_prob = 0.001;
+      // Weak returns at grazing incidence ("dropout ... close to the ground plane"): beyond
+      // 80 deg from the normal, certain drop-out approached at 90 deg.
+      c.grazing_cos = 0.17;
+      c.grazing_dropout_prob = 1.0;
       c.quantum_m = 0.00025;
       break;
     case NoiseModel::kD435:
@@ -120,6 +125,8 @@ NoiseConfig NoiseConfig::forModel(NoiseModel model) {
       c.speckle_prob = 0.0008;
       c.speckle_radius_px = 2;
       c.random_dropout_prob = 0.002;
+      c.grazing_cos = 0.17;
+      c.grazing_dropout_prob = 1.0;
       c.quantum_m = 0.001;
       break;
   }
@@ -146,6 +153,9 @@ std::vector<std::string> NoiseConfig::validate() const {
   prob(edge_bleed_prob, "edge_bleed_prob");
   prob(speckle_prob, "speckle_prob");
   prob(random_dropout_prob, "random_dropout_prob");
+  prob(grazing_dropout_prob, "grazing_dropout_prob");
+  if (!(std::isfinite(grazing_cos) && grazing_cos >= 0.0 && grazing_cos < 1.0))
+    p.push_back("grazing_cos must be in [0, 1)");
   if (max_jitter_px < 0 || max_jitter_px > 16) p.push_back("max_jitter_px must be in [0, 16]");
   if (edge_band_px < 0 || edge_band_px > 16) p.push_back("edge_band_px must be in [0, 16]");
   if (speckle_radius_px < 0 || speckle_radius_px > 16)
@@ -197,16 +207,22 @@ std::vector<std::uint8_t> edgeDistance(const DepthImage& depth, const NoiseConfi
 }
 
 DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64_t seed,
-                      const DepthRange& range) {
+                      const DepthRange& range, const std::vector<float>* cos_incidence) {
   const auto problems = c.validate();
   if (!problems.empty()) throw std::invalid_argument("NoiseConfig: " + joinProblems(problems));
   const auto range_problems = range.validate();
   if (!range_problems.empty())
     throw std::invalid_argument("DepthRange: " + joinProblems(range_problems));
   checkFrame(clean);
+  if (cos_incidence && cos_incidence->size() != clean.data.size()) {
+    std::ostringstream s;
+    s << "incidence buffer has " << cos_incidence->size() << " values for a " << clean.width << "x"
+      << clean.height << " frame";
+    throw DepthInputError(s.str());
+  }
   if (c.model == NoiseModel::kNone && c.sigmaAt(1.0) == 0.0 && c.lateral_fwhm_px == 0.0 &&
       c.edge_dropout_prob == 0.0 && c.edge_bleed_prob == 0.0 && c.speckle_prob == 0.0 &&
-      c.random_dropout_prob == 0.0 && c.quantum_m == 0.0) {
+      c.random_dropout_prob == 0.0 && c.grazing_dropout_prob == 0.0 && c.quantum_m == 0.0) {
     DepthImage out = clean;
     for (float& z : out.data)
       if (!(z >= range.min_m && z <= range.max_m)) z = 0.0f;
@@ -268,6 +284,14 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         if (c.edge_dropout_prob > 0.0 && e <= band) {
           const double p = c.edge_dropout_prob * (1.0 - static_cast<double>(e) / (band + 1));
           if (uniform(seed, i, kEdgeDrop) < p) z = 0.0;
+        }
+
+        // Grazing incidence, judged at the pixel's own ray (the clean surface it sees).
+        if (cos_incidence && c.grazing_dropout_prob > 0.0 && z > 0.0) {
+          const double ci = (*cos_incidence)[i];
+          if (ci < c.grazing_cos &&
+              uniform(seed, i, kGrazing) < c.grazing_dropout_prob * (1.0 - ci / c.grazing_cos))
+            z = 0.0;
         }
 
         if (z > 0.0) {

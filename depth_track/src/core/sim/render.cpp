@@ -97,15 +97,29 @@ FramePrimitive prepare(const Primitive& prim, const Eigen::Isometry3d& T_C_W,
 }
 
 /// Nearest z-depth along the pixel ray d_C = (xn, yn, 1) over the candidate primitives; with
-/// this ray scaling the ray parameter t equals the z-depth.
-double castRay(const std::vector<const FramePrimitive*>& candidates, int u, double xn, double yn) {
+/// this ray scaling the ray parameter t equals the z-depth. With `cos_incidence` set, also the
+/// |cos| of the angle between the ray and the normal of the surface hit (0 if none).
+double castRay(const std::vector<const FramePrimitive*>& candidates, int u, double xn, double yn,
+               double* cos_incidence) {
   const Eigen::Vector3d d_C(xn, yn, 1.0);
   double best = std::numeric_limits<double>::infinity();
+  const FramePrimitive* hit = nullptr;
   for (const FramePrimitive* f : candidates) {
     if (u < f->u0 || u > f->u1 || f->z_min >= best) continue;
     const Eigen::Vector3d d_P = f->R_P_C * d_C;
     const auto t = intersectLocal(*f->prim, f->o_P, d_P, kNearZ_m, best);
-    if (t) best = *t;
+    if (t) {
+      best = *t;
+      hit = f;
+    }
+  }
+  if (cos_incidence) {
+    *cos_incidence = 0.0;
+    if (hit) {
+      const Eigen::Vector3d d_P = hit->R_P_C * d_C;
+      const Eigen::Vector3d n_P = surfaceNormalLocal(*hit->prim, hit->o_P + best * d_P);
+      *cos_incidence = std::min(1.0, std::abs(n_P.dot(d_P)) / d_P.norm());
+    }
   }
   return best;
 }
@@ -114,10 +128,9 @@ float toDepth(double z, const DepthRange& range) {
   return (std::isfinite(z) && z >= range.min_m && z <= range.max_m) ? static_cast<float>(z) : 0.0f;
 }
 
-}  // namespace
-
-DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
-                       const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads) {
+RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
+                         const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads,
+                         bool incidence) {
   validateInputs(scene, K, T_W_C, range);
   const Eigen::Isometry3d T_C_W = T_W_C.inverse();
   std::vector<FramePrimitive> prims;
@@ -130,7 +143,10 @@ DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
   std::sort(prims.begin(), prims.end(),
             [](const FramePrimitive& a, const FramePrimitive& b) { return a.z_min < b.z_min; });
 
-  DepthImage out(K.width, K.height);
+  RenderedDepth result;
+  result.depth = DepthImage(K.width, K.height);
+  if (incidence) result.cos_incidence.assign(result.depth.data.size(), 0.0f);
+  DepthImage& out = result.depth;
   auto rows = [&](const tbb::blocked_range<int>& r) {
     std::vector<const FramePrimitive*> candidates;
     candidates.reserve(prims.size());
@@ -140,8 +156,14 @@ DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
         if (v >= f.v0 && v <= f.v1) candidates.push_back(&f);
       const double yn = (v - K.cy) / K.fy;
       float* row = out.data.data() + static_cast<std::size_t>(v) * K.width;
-      for (int u = 0; u < K.width; ++u)
-        row[u] = toDepth(castRay(candidates, u, (u - K.cx) / K.fx, yn), range);
+      float* cos_row =
+          incidence ? result.cos_incidence.data() + static_cast<std::size_t>(v) * K.width : nullptr;
+      for (int u = 0; u < K.width; ++u) {
+        double c = 0.0;
+        row[u] =
+            toDepth(castRay(candidates, u, (u - K.cx) / K.fx, yn, incidence ? &c : nullptr), range);
+        if (cos_row) cos_row[u] = row[u] > 0.0f ? static_cast<float>(c) : 0.0f;
+      }
     }
   };
   if (threads == 1) {
@@ -153,7 +175,20 @@ DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
   } else {
     tbb::parallel_for(tbb::blocked_range<int>(0, K.height, 8), rows);
   }
-  return out;
+  return result;
+}
+
+}  // namespace
+
+DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
+                       const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads) {
+  return renderImpl(scene, K, T_W_C, range, threads, false).depth;
+}
+
+RenderedDepth renderDepthWithIncidence(const Scene& scene, const PinholeIntrinsics& K,
+                                       const Eigen::Isometry3d& T_W_C, const DepthRange& range,
+                                       int threads) {
+  return renderImpl(scene, K, T_W_C, range, threads, true);
 }
 
 DepthImage renderDepthReference(const Scene& scene, const PinholeIntrinsics& K,

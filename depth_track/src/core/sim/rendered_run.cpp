@@ -22,8 +22,8 @@ DepthImage RenderedRun::renderFrame(std::size_t i, const NoiseConfig& noise, std
     s << "run '" << name << "' has " << T_W_C.size() << " frames; frame " << i << " requested";
     throw std::out_of_range(s.str());
   }
-  const DepthImage clean = renderDepth(scene, intrinsics, T_W_C[i], range, threads);
-  return applyNoise(clean, noise, frameSeed(run_seed, i), range);
+  const RenderedDepth clean = renderDepthWithIncidence(scene, intrinsics, T_W_C[i], range, threads);
+  return applyNoise(clean.depth, noise, frameSeed(run_seed, i), range, &clean.cos_incidence);
 }
 
 RawDepth16 RenderedRun::renderFrameRaw(std::size_t i, const NoiseConfig& noise,

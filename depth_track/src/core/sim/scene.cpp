@@ -99,6 +99,40 @@ std::optional<double> intersectLocal(const Primitive& prim, const Eigen::Vector3
   return std::nullopt;
 }
 
+Eigen::Vector3d surfaceNormalLocal(const Primitive& prim, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d& h = prim.half_extents;
+  switch (prim.shape) {
+    case Shape::kRectangle:
+      return Eigen::Vector3d::UnitZ();
+    case Shape::kBox: {
+      // The face the point lies on is the one it is closest to.
+      int axis = 0;
+      double best = -std::numeric_limits<double>::infinity();
+      for (int i = 0; i < 3; ++i) {
+        const double d = std::abs(p[i]) - h[i];
+        if (d > best) {
+          best = d;
+          axis = i;
+        }
+      }
+      Eigen::Vector3d n = Eigen::Vector3d::Zero();
+      n[axis] = p[axis] >= 0.0 ? 1.0 : -1.0;
+      return n;
+    }
+    case Shape::kCylinder: {
+      const double radial = p.head<2>().norm();
+      if (std::abs(p.z()) - h.z() > radial - h.x() || radial < 1e-12)
+        return Eigen::Vector3d(0.0, 0.0, p.z() >= 0.0 ? 1.0 : -1.0);
+      return Eigen::Vector3d(p.x() / radial, p.y() / radial, 0.0);
+    }
+    case Shape::kSphere: {
+      const double r = p.norm();
+      return r > 0.0 ? Eigen::Vector3d(p / r) : Eigen::Vector3d::UnitZ();
+    }
+  }
+  return Eigen::Vector3d::UnitZ();
+}
+
 double distanceToSurface(const Primitive& prim, const Eigen::Vector3d& p_W) {
   const Eigen::Vector3d p = prim.T_W_P.inverse() * p_W;
   const Eigen::Vector3d& h = prim.half_extents;

@@ -49,10 +49,16 @@ struct NoiseConfig {
   double speckle_prob = 0.0;       ///< per-pixel probability of seeding a drop-out blob
   int speckle_radius_px = 0;       ///< blob radius (chessboard), pixels
   double random_dropout_prob = 0.0;  ///< independent per-pixel drop-out probability
-  double quantum_m = 0.0;            ///< output quantisation step (sensor depth unit), 0 = none
+  /// Grazing incidence: below this |cos| of the angle between ray and surface normal the return
+  /// weakens; the drop-out probability rises linearly from 0 at grazing_cos to
+  /// grazing_dropout_prob at cos = 0 (needs the incidence from renderDepthWithIncidence).
+  double grazing_cos = 0.0;
+  double grazing_dropout_prob = 0.0;
+  double quantum_m = 0.0;  ///< output quantisation step (sensor depth unit), 0 = none
 
   /// Preset of the named model: L515 sigma = 1.5 mm + 1.1 mm/m z (crosses 5 mm just above 3 m,
-  /// thesis 4.1.3), 2.4 px lateral resolution (thesis 4.1.4), edge drop-outs, 0.25 mm units;
+  /// thesis 4.1.3), 2.4 px lateral resolution (thesis 4.1.4), edge drop-outs, drop-outs at
+  /// grazing incidence beyond 80 deg (near the ground plane, thesis 4.1.4), 0.25 mm units;
   /// D435 sigma = 4.8 mm/m^2 z^2 (30 mm at 2.5 m, inside the thesis's 24-37 mm), edge bleeding
   /// and drop-outs, speckle, 1 mm units; none = exact.
   static NoiseConfig forModel(NoiseModel model);
@@ -65,10 +71,12 @@ struct NoiseConfig {
 };
 
 /// Applies the noise model to a clean rendered frame (metres, 0 = no return). Pixels pushed
-/// outside `range` become 0. Throws std::invalid_argument naming every config problem, or
-/// DepthInputError for a frame whose buffer does not match its size. Thread-safe.
+/// outside `range` become 0. `cos_incidence` (one value per pixel, from
+/// renderDepthWithIncidence) enables grazing-angle drop-outs; without it they are skipped.
+/// Throws std::invalid_argument naming every config problem, or DepthInputError for a frame
+/// (or incidence) buffer that does not match the frame size. Thread-safe.
 DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& config, std::uint64_t seed,
-                      const DepthRange& range);
+                      const DepthRange& range, const std::vector<float>* cos_incidence = nullptr);
 
 /// Per-pixel chessboard distance (pixels, capped at 255) to the nearest depth discontinuity of
 /// `depth` under the config's edge rule; discontinuity pixels themselves have distance 0.

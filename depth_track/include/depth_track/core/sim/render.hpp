@@ -1,6 +1,7 @@
 #pragma once
 /// Synthetic depth rendering of an analytic scene (ROS-free, library depth_track_sim).
 #include <Eigen/Geometry>
+#include <vector>
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/depth_image.hpp"
@@ -18,6 +19,19 @@ namespace sim {
 /// problem of the scene, intrinsics, range or pose. Thread-safe (reads the scene only).
 DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& intrinsics,
                        const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads = 0);
+
+/// A rendered frame with the incidence of each ray on the surface it hit.
+struct RenderedDepth {
+  DepthImage depth;                  ///< as renderDepth
+  std::vector<float> cos_incidence;  ///< |cos| of the angle between ray and surface normal, in
+                                     ///< [0, 1] (1 = head-on); 0 where depth is 0
+};
+
+/// renderDepth plus the per-pixel incidence (for grazing-angle drop-outs in the noise models).
+/// Same contract, threads and exceptions as renderDepth. Thread-safe.
+RenderedDepth renderDepthWithIncidence(const Scene& scene, const PinholeIntrinsics& intrinsics,
+                                       const Eigen::Isometry3d& T_W_C, const DepthRange& range,
+                                       int threads = 0);
 
 /// Reference renderer for equivalence tests: same contract as renderDepth, but tests every
 /// primitive for every pixel without screen-space culling, serially. Slow; not for runs.

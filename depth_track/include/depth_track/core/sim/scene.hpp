@@ -33,6 +33,10 @@ struct Primitive {
 std::optional<double> intersectLocal(const Primitive& prim, const Eigen::Vector3d& o_P,
                                      const Eigen::Vector3d& d_P, double t_min, double t_max);
 
+/// Outward unit normal, in the primitive's frame, of the surface point p_P (a point returned by
+/// intersectLocal; for a rectangle the +z side). Thread-safe.
+Eigen::Vector3d surfaceNormalLocal(const Primitive& prim, const Eigen::Vector3d& p_P);
+
 /// Unsigned distance from a world point p_W to the primitive's surface, metres. Thread-safe.
 double distanceToSurface(const Primitive& prim, const Eigen::Vector3d& p_W);
 
