@@ -393,3 +393,22 @@ TEST(TrackDrv, WaitStepAcknowledgedAfterItsTime) {
   rig.run(0.1);
   EXPECT_EQ(rig.hw.out.lastStatus(9), st(AckStatus::kDone));
 }
+
+TEST(TrackDrv, CoarseLoopStillLandsExactlyAndKeepsTheFrameClock) {
+  // A host simulator may call update() only every 1 ms (~11 steps per call at 0.2 m/s): steps
+  // bunch up but the count follows the same analytic profile and ends on the target.
+  Rig rig;
+  rig.home();
+  const size_t frames_before = rig.hw.out.all<rp::TrackStatePayload>().size();
+  rig.move(2, 0.777, false, 0.2, 0.4);
+  ASSERT_EQ(rig.runUntilDone(2, 10.0, 1000), st(AckStatus::kDone));
+  EXPECT_EQ(rig.drv.positionSteps(), std::lround(0.777 / kMps));
+  EXPECT_EQ(rig.hw.steps, std::lround(0.777 / kMps));
+  for (int d : rig.hw.step_dirs) EXPECT_EQ(d, 1);
+  // The last TrackState streamed while moving never reports more than the speed limit.
+  for (const auto& s : rig.hw.out.all<rp::TrackStatePayload>())
+    EXPECT_LE(std::abs(s.vel_um_s), 200000);
+  const auto frames = rig.hw.out.all<rp::TrackStatePayload>();
+  const double t = (frames.back().board_time_ms - frames[frames_before].board_time_ms) * 1e-3;
+  EXPECT_NEAR(static_cast<double>(frames.size() - frames_before - 1), t * 30.0, 1.0);
+}
