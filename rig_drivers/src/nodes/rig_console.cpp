@@ -130,7 +130,14 @@ int main(int argc, char** argv) {
   ros::init(argc, argv, "rig_console", ros::init_options::AnonymousName);
   ros::NodeHandle pnh("~");
   std::vector<std::string> hosts;
-  if (!pnh.getParam("hosts", hosts)) hosts = {"track_host", "car_host"};
+  std::string hosts_text;  // also "a,b" or "[a,b]" (a _hosts:= command-line value is a string)
+  if (!pnh.getParam("hosts", hosts) && pnh.getParam("hosts", hosts_text)) {
+    for (char& c : hosts_text)
+      if (c == ',' || c == '[' || c == ']') c = ' ';
+    std::istringstream in(hosts_text);
+    for (std::string h; in >> h;) hosts.push_back(h);
+  }
+  if (hosts.empty()) hosts = {"track_host", "car_host"};
   Console console(hosts);
   bool quit = false;
   if (argc > 1) {  // one-shot: each argument is one command line
