@@ -92,9 +92,9 @@ inline float expNegApprox(float t) {
 }
 
 // One output row of a bilateral filter with a (2 ry + 1) x (2 rx + 1) kernel. `padded` points at
-// the first pixel of the padded row that holds image row y (zero border of ry rows / rx columns
-// on each side, row stride `pstride`); `centre` is image row y. The loop runs along the row so
-// that it vectorises without reassociating any sum: each x owns its own accumulators.
+// the first pixel of the padded row that holds image row y (far-depth border of ry rows / rx
+// columns on each side, row stride `pstride`); `centre` is image row y. The loop runs along the row
+// so that it vectorises without reassociating any sum: each x owns its own accumulators.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 __attribute__((target_clones("arch=x86-64-v3", "default")))
 #endif
@@ -116,9 +116,10 @@ void bilateralRow(const float* __restrict padded, std::ptrdiff_t pstride,
         const float d = nb[x];
         const float dz = d - centre[x];
         const float t = dz * dz * inv_2sd2;
-        // Branch-free so the loop vectorises: clamp t into the approximation's range, then
-        // zero the weight of missing pixels and of depths beyond the cutoff.
-        const float keep = static_cast<float>((d > 0.0f) & (t <= t_cut));
+        // Branch-free so the loop vectorises: missing pixels hold a far depth (padForFilter), so
+        // one comparison drops them together with depths beyond the cutoff; t is clamped into
+        // the approximation's range first.
+        const float keep = static_cast<float>(t <= t_cut);
         const float w = ws * expNegApprox(t < t_cut ? t : t_cut) * keep;
         num[x] += w * d;
         den[x] += w;
@@ -133,14 +134,22 @@ void bilateralRow(const float* __restrict padded, std::ptrdiff_t pstride,
   }
 }
 
-// Copies a frame into a buffer with a zero border (zero = no return, so border taps get no
-// weight).
-std::vector<float> padWithZeros(const DepthImage& in, int rx, int ry, std::ptrdiff_t* stride) {
+// Copies a frame into a buffer with a border of rx columns / ry rows. Missing pixels and the
+// border hold a stand-in depth further from every real depth of the frame than the range cutoff
+// (cutoff_m), so its range weight is cut off and the tap loop needs no separate validity test;
+// its weight is exactly 0, so it never reaches the sums.
+std::vector<float> padForFilter(const DepthImage& in, int rx, int ry, double cutoff_m,
+                                std::ptrdiff_t* stride) {
+  float max_depth = 0.0f;
+  for (float d : in.data) max_depth = std::max(max_depth, d);
+  const float far = static_cast<float>(2.0 * max_depth + 4.0 * cutoff_m + 1.0e4);
   *stride = in.width + 2 * rx;
-  std::vector<float> p(static_cast<std::size_t>(*stride) * (in.height + 2 * ry), 0.0f);
-  for (int v = 0; v < in.height; ++v)
-    std::copy_n(in.data.data() + static_cast<std::size_t>(v) * in.width, in.width,
-                p.data() + static_cast<std::size_t>(v + ry) * *stride + rx);
+  std::vector<float> p(static_cast<std::size_t>(*stride) * (in.height + 2 * ry), far);
+  for (int v = 0; v < in.height; ++v) {
+    const float* src = in.data.data() + static_cast<std::size_t>(v) * in.width;
+    float* dst = p.data() + static_cast<std::size_t>(v + ry) * *stride + rx;
+    for (int u = 0; u < in.width; ++u) dst[u] = src[u] > 0.0f ? src[u] : far;
+  }
   return p;
 }
 
@@ -161,7 +170,8 @@ void forRows(int height, int threads, const Fn& fn) {
 DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterConfig& c,
                          int threads) {
   std::ptrdiff_t pstride = 0;
-  const std::vector<float> padded = padWithZeros(in, rx, ry, &pstride);
+  const std::vector<float> padded =
+      padForFilter(in, rx, ry, c.depth_cutoff_sigmas * c.depth_sigma_m, &pstride);
   const int kw = 2 * rx + 1, kh = 2 * ry + 1;
   std::vector<float> spatial(static_cast<std::size_t>(kw) * kh);
   const double inv_2ss2 = 1.0 / (2.0 * c.spatial_sigma_px * c.spatial_sigma_px);

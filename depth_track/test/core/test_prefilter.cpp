@@ -237,6 +237,19 @@ TEST(Prefilter, HolesAreNeitherUsedNorFilled) {
   }
 }
 
+TEST(Prefilter, HolesStayOutForAnyDepthSigma) {
+  // Holes are skipped by value (a stand-in depth beyond the range cutoff), so even a depth sigma
+  // of 5 km, whose 15 km cutoff takes in every real depth, must not let a hole into the mean: a
+  // flat 2 m surface next to a column of holes stays at 2 m (float rounding only).
+  DepthImage d(9, 9, 2.0f);
+  for (int v = 0; v < 9; ++v) d.at(4, v) = 0.0f;
+  for (const double sd : {0.05, 5000.0}) {
+    const DepthImage f = applyPrefilter(d, bilateral(9, 3.0, sd));
+    for (int v = 0; v < 9; ++v)
+      for (int u = 0; u < 9; ++u) EXPECT_NEAR(f.at(u, v), d.at(u, v), 1e-6) << u << "," << v;
+  }
+}
+
 TEST(Prefilter, OptimisedFullKernelMatchesTheDirectFormula) {
   // Steps of 2 cm (inside the cutoff, partly weighted), 30 cm (outside), holes and borders.
   std::mt19937 rng(5);
