@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -263,4 +264,19 @@ TEST(Evaluation, StillCameraOnTheTeddyRun) {
   EXPECT_NEAR(e.thesis.max_err_mm.y(), 742.383305370, 1e-5);
   EXPECT_NEAR(e.thesis.max_err_mm.z(), 1571.298670739, 1e-5);
   EXPECT_NEAR(e.thesis.end_drift_mm, 1814.717909209, 1e-5);
+}
+
+TEST(Evaluation, NonFiniteEstimatesAreDroppedNotPropagated) {
+  Trajectory gt, est;
+  for (int i = 0; i < 10; ++i) {
+    gt.push_back({i * 0.1, gtPose(i * 0.1)});
+    est.push_back({i * 0.1, gtPose(i * 0.1)});
+  }
+  est[4].T_W_C.translation().x() = std::numeric_limits<double>::quiet_NaN();
+  const TrajectoryEvaluation e = evaluateTrajectory(est, gt);
+  EXPECT_EQ(e.est_poses, 10u);
+  EXPECT_EQ(e.standard.frames, 9u);
+  EXPECT_TRUE(std::isfinite(e.standard.ate_rmse_m));
+  EXPECT_LT(e.standard.ate_rmse_m, 1e-9);
+  EXPECT_LT(e.thesis.max_err_mm.maxCoeff(), 1e-9);
 }
