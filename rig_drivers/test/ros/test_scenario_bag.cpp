@@ -151,7 +151,7 @@ TEST(ScenarioBag, ImagesAreL515DepthOfTheChairRoom) {
   EXPECT_EQ(n, kFrames);
 }
 
-TEST(ScenarioBag, TruckRunHasRcStreamAndMovingGroundTruth) {
+TEST(ScenarioBag, TruckRunHasRcStreamAndGroundTruth) {
   const std::string dir = tmpDir();
   const std::string path = makeBag("Chair3", dir);
   const auto topics = scan(path);

@@ -1,0 +1,346 @@
+// make_scenario_bag: runs one rig simulator scenario offline (no roscore, no wall clock) and writes
+// it as a bag: rendered depth (16UC1, noise model of the scenario) + camera_info at the camera's
+// exposures, every rig board's state stream and raw frames as the host received them, the exact
+// camera pose, and tf. Deterministic: the scenario's seed fixes every random draw.
+//
+//   make_scenario_bag --scenario config/scenarios/RT1.yaml --out-dir bags/generated
+//                     [--compression lz4|bz2|none] [--max-frames N] [--threads N]
+//
+// Topics (stamps = simulated time from a fixed epoch, monotonic per topic):
+//   /camera/depth/image_rect      sensor_msgs/Image 16UC1, frame camera_depth_optical_frame
+//   /camera/depth/camera_info     sensor_msgs/CameraInfo
+//   /rig_sim/camera_pose          geometry_msgs/PoseStamped, ground truth T_map_camera (optical)
+//   /tf                           map -> camera_gt (ground truth, optical frame) per exposure
+//   /tf_static                    base_link -> camera_link -> camera_depth_optical_frame (latched)
+//   /track/track_state /track/link_timing /track/raw_frames     (ServoTrack, TrackDRV)
+//   /car/carriage_sensors /car/raw_frames                        (ServoTrack, CarDRV)
+//   /truck/truck_rc /truck/raw_frames                            (ServoTruck, TruckDRV)
+#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <rig_msgs/CarriageSensors.h>
+#include <rig_msgs/LinkTiming.h>
+#include <rig_msgs/RawFrame.h>
+#include <rig_msgs/TrackState.h>
+#include <rig_msgs/TruckRc.h>
+#include <rosbag/bag.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cstring>
+#include <iostream>
+
+#include "depth_track/core/sim/noise.hpp"
+#include "depth_track/core/sim/render.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
+#include "depth_track/core/sim/scene.hpp"
+#include "rig_drivers/protocol/rig_sim.hpp"
+
+using namespace rig_drivers;
+namespace dsim = depth_track::sim;
+
+namespace {
+
+/// Bags start at a fixed epoch so that two runs give identical files.
+const ros::Time kEpoch(1700000000, 0);
+const char* kOpticalFrame = "camera_depth_optical_frame";
+
+ros::Time stamp(double t_s) { return kEpoch + ros::Duration(t_s); }
+
+geometry_msgs::Transform toTransform(const Eigen::Isometry3d& T) {
+  geometry_msgs::Transform m;
+  m.translation.x = T.translation().x();
+  m.translation.y = T.translation().y();
+  m.translation.z = T.translation().z();
+  const Eigen::Quaterniond q(T.rotation());
+  m.rotation.x = q.x();
+  m.rotation.y = q.y();
+  m.rotation.z = q.z();
+  m.rotation.w = q.w();
+  return m;
+}
+
+geometry_msgs::TransformStamped tfMsg(const ros::Time& t, const std::string& parent,
+                                      const std::string& child, const Eigen::Isometry3d& T) {
+  geometry_msgs::TransformStamped m;
+  m.header.stamp = t;
+  m.header.frame_id = parent;
+  m.child_frame_id = child;
+  m.transform = toTransform(T);
+  return m;
+}
+
+/// Writes one decoded board frame (state streams) and the raw frame itself.
+class RigTopics {
+ public:
+  RigTopics(rosbag::Bag& bag) : bag_(bag) {}
+
+  void write(const SimLinkFrame& lf) {
+    const ros::Time t = stamp(lf.t_s);
+    const char* ns = lf.board == protocol::BoardId::kTrack ? "/track"
+                     : lf.board == protocol::BoardId::kCar ? "/car"
+                                                           : "/truck";
+    rig_msgs::RawFrame raw;
+    raw.header.stamp = t;
+    raw.header.seq = raw_seq_++;
+    raw.port = std::string("sim:") + (ns + 1);
+    raw.board = static_cast<uint8_t>(lf.board);
+    raw.outgoing = lf.outgoing;
+    raw.bytes = lf.bytes;
+    bag_.write(std::string(ns) + "/raw_frames", t, raw);
+    if (lf.outgoing) return;
+    protocol::StreamDecoder dec;
+    const auto events = protocol::feed(dec, lf.bytes);
+    for (const auto& ev : events) {
+      if (ev.error != protocol::DecodeError::kNone) continue;
+      writeState(ev.frame, t, ns);
+    }
+  }
+
+  int stateMessages() const { return states_; }
+
+ private:
+  void writeState(const protocol::Frame& f, const ros::Time& t, const std::string& ns) {
+    if (f.id == protocol::MsgId::kTrackState) {
+      protocol::TrackStatePayload p;
+      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
+      using P = protocol::TrackStatePayload;
+      rig_msgs::TrackState m;
+      m.header.stamp = t;
+      m.header.frame_id = "base_link";
+      m.track_pos_m = p.pos_um * 1e-6;
+      m.track_steps = p.pos_steps;
+      m.velocity_mps = p.vel_um_s * 1e-6;
+      m.near_end_sensor = p.flags & P::kNearSensor;
+      m.far_end_sensor = p.flags & P::kFarSensor;
+      m.estop = p.flags & P::kEStopFlag;
+      m.homed = p.flags & P::kHomed;
+      m.state = static_cast<uint8_t>(p.state);
+      m.mode = p.mode;
+      m.board_time_s = p.board_time_ms * 1e-3;
+      m.frame_seq = f.seq;
+      bag_.write(ns + "/track_state", t, m);
+      rig_msgs::LinkTiming lt;
+      lt.header.stamp = t;
+      lt.time1_s = m.board_time_s;
+      lt.time2_s = (t - kEpoch).toSec();
+      lt.time3_s = lt.time4_s = lt.time5_s = lt.time6_s = lt.round_trip_s = -1.0;
+      bag_.write(ns + "/link_timing", t, lt);
+      ++states_;
+    } else if (f.id == protocol::MsgId::kCarSensors) {
+      protocol::CarSensorsPayload p;
+      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
+      rig_msgs::CarriageSensors m;
+      m.header.stamp = t;
+      m.header.frame_id = "base_link";
+      m.pitch_dem_deg = p.pitch_dem_cdeg * 0.01f;
+      m.pitch_deg = p.pitch_cdeg * 0.01f;
+      m.yaw_dem_deg = p.yaw_dem_cdeg * 0.01f;
+      m.yaw_deg = p.yaw_cdeg * 0.01f;
+      m.acc_x_g = p.acc_x_mg * 1e-3f;
+      m.acc_y_g = p.acc_y_mg * 1e-3f;
+      m.acc_z_g = p.acc_z_mg * 1e-3f;
+      m.tf_pos_m = p.tof_mm * 1e-3f;
+      m.tf_valid = p.flags & protocol::CarSensorsPayload::kTofValid;
+      m.board_time_s = p.board_time_ms * 1e-3;
+      m.frame_seq = f.seq;
+      bag_.write(ns + "/carriage_sensors", t, m);
+      ++states_;
+    } else if (f.id == protocol::MsgId::kTruckRc) {
+      protocol::TruckRcPayload p;
+      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
+      using P = protocol::TruckRcPayload;
+      rig_msgs::TruckRc m;
+      m.header.stamp = t;
+      m.header.frame_id = "base_link";
+      m.ch2_us = p.ch2_us;
+      m.ch3_us = p.ch3_us;
+      m.ch5_us = p.ch5_us;
+      m.ch7_us = p.ch7_us;
+      m.steering = p.steering_permille * 1e-3f;
+      m.speed_signal = p.speed_permille * 1e-3f;
+      m.speed_mps = p.speed_mm_s * 1e-3f;
+      m.running = p.flags & P::kRunning;
+      m.recording = p.flags & P::kRecording;
+      m.signal_ok = p.flags & P::kSignalOk;
+      m.board_time_s = p.board_time_ms * 1e-3;
+      m.frame_seq = f.seq;
+      bag_.write(ns + "/truck_rc", t, m);
+      ++states_;
+    }
+  }
+
+  rosbag::Bag& bag_;
+  uint32_t raw_seq_ = 0;
+  int states_ = 0;
+};
+
+dsim::Scene sceneByName(const std::string& name) {
+  if (name == "chair_room") return dsim::chairRoomScene();
+  if (name == "furnished_room") return dsim::furnishedRoomScene();
+  if (name == "hall") return dsim::hallwayScene();
+  throw std::invalid_argument("unknown scene '" + name + "'");
+}
+
+sensor_msgs::CameraInfo cameraInfo(const depth_track::PinholeIntrinsics& K) {
+  sensor_msgs::CameraInfo ci;
+  ci.header.frame_id = kOpticalFrame;
+  ci.width = K.width;
+  ci.height = K.height;
+  ci.distortion_model = "plumb_bob";
+  ci.D.assign(5, 0.0);
+  ci.K = {K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1};
+  ci.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  ci.P = {K.fx, 0, K.cx, 0, 0, K.fy, K.cy, 0, 0, 0, 1, 0};
+  return ci;
+}
+
+/// base_link -> camera_link (camera body: x forward, y left, z up) of the rig. On ServoTrack
+/// base_link is the camera body itself (the gimbal moves it), on ServoTruck the rear axle.
+Eigen::Isometry3d baseToCameraLink(const RigSimulator& sim) {
+  if (sim.scenario().rig == RigKind::kServoTrack) return Eigen::Isometry3d::Identity();
+  TruckModel m(sim.config().truck);
+  Eigen::Isometry3d T = m.T_B_C();
+  T.linear() = T.linear() * depth_track::rotationBodyFromOptical().transpose();
+  return T;
+}
+
+int run(int argc, char** argv) {
+  CLI::App app{"Writes one rig simulator scenario as a bag (offline, deterministic)."};
+  std::string scenario_path, out_dir = ".", compression = "lz4";
+  int max_frames = 0, threads = 1;
+  app.add_option("--scenario", scenario_path, "scenario YAML (config/scenarios/*.yaml)")
+      ->required();
+  app.add_option("--out-dir", out_dir, "output folder; the bag is <out-dir>/<name>.bag");
+  app.add_option("--compression", compression, "none | lz4 | bz2");
+  app.add_option("--max-frames", max_frames, "stop after this many camera frames (0 = all)");
+  app.add_option("--threads", threads, "render threads (1 = serial; <= 0 = all cores)");
+  CLI11_PARSE(app, argc, argv);
+  if (compression != "none" && compression != "lz4" && compression != "bz2") {
+    std::cerr << "make_scenario_bag: --compression must be none, lz4 or bz2 (got '" << compression
+              << "')\n";
+    return 2;
+  }
+  if (max_frames < 0) {
+    std::cerr << "make_scenario_bag: --max-frames must be >= 0\n";
+    return 2;
+  }
+
+  const auto t_start = std::chrono::steady_clock::now();
+  const Scenario scenario = loadScenario(scenario_path);
+  RigSimulator sim(scenario);
+  const dsim::Scene scene = sceneByName(scenario.scene);
+  const dsim::NoiseConfig noise =
+      dsim::NoiseConfig::forModel(dsim::parseNoiseModel(scenario.noise));
+  const double depth_scale = dsim::nativeDepthScale(noise.model);
+  const depth_track::PinholeIntrinsics K = dsim::l515Intrinsics();
+  const depth_track::DepthRange range;
+  const int want_frames =
+      max_frames > 0 ? std::min(max_frames, scenario.frameCount()) : scenario.frameCount();
+
+  const std::string path = out_dir + "/" + scenario.name + ".bag";
+  rosbag::Bag bag;
+  bag.open(path, rosbag::bagmode::Write);
+  if (compression == "lz4") bag.setCompression(rosbag::compression::LZ4);
+  if (compression == "bz2") bag.setCompression(rosbag::compression::BZ2);
+
+  // Static frames, latched like a live static_transform_publisher.
+  {
+    tf2_msgs::TFMessage st;
+    st.transforms.push_back(tfMsg(kEpoch, "base_link", "camera_link", baseToCameraLink(sim)));
+    Eigen::Isometry3d T_L_O = Eigen::Isometry3d::Identity();
+    T_L_O.linear() = depth_track::rotationBodyFromOptical();
+    st.transforms.push_back(tfMsg(kEpoch, "camera_link", kOpticalFrame, T_L_O));
+    auto hdr = boost::make_shared<ros::M_string>();
+    (*hdr)["latching"] = "1";
+    (*hdr)["callerid"] = "/make_scenario_bag";
+    bag.write("/tf_static", kEpoch, st, hdr);
+  }
+
+  const sensor_msgs::CameraInfo info0 = cameraInfo(K);
+  RigTopics rig(bag);
+  int frames = 0, image_seq = 0;
+  double render_ms = 0.0;
+  const double slice_s = 0.02;
+  const double t_limit = scenario.durationS() * 3.0 + 60.0;  // mode 2 timing is only estimated
+  while (frames < want_frames) {
+    if (sim.now() > t_limit) {
+      std::cerr << "make_scenario_bag: " << scenario.name << " did not finish within " << t_limit
+                << " s of simulated time (" << frames << "/" << want_frames << " frames)\n";
+      for (const auto& e : sim.takeEvents()) std::cerr << "  " << e << "\n";
+      bag.close();
+      return 1;
+    }
+    sim.advanceTo(sim.now() + slice_s);
+    for (const auto& e : sim.takeEvents()) std::cerr << scenario.name << ": " << e << "\n";
+    // Link frames and camera exposures of this slice, written in time order.
+    std::vector<SimLinkFrame> link = sim.takeLinkLog();
+    std::vector<SimCameraFrame> cams = sim.takeCameraFrames();
+    std::size_t li = 0;
+    for (const SimCameraFrame& cf : cams) {
+      while (li < link.size() && link[li].t_s <= cf.truth.t_s) rig.write(link[li++]);
+      if (frames >= want_frames) break;
+      const ros::Time t = stamp(cf.truth.t_s);
+      const auto r0 = std::chrono::steady_clock::now();
+      const depth_track::DepthImage clean =
+          dsim::renderDepth(scene, K, cf.truth.T_W_C, range, threads);
+      const depth_track::DepthImage noisy =
+          dsim::applyNoise(clean, noise, dsim::frameSeed(scenario.seed, cf.index), range);
+      const dsim::RawDepth16 raw = dsim::toRaw16(noisy, depth_scale);
+      render_ms +=
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r0).count();
+      sensor_msgs::Image img;
+      img.header.stamp = t;
+      img.header.seq = image_seq;
+      img.header.frame_id = kOpticalFrame;
+      img.width = raw.width;
+      img.height = raw.height;
+      img.encoding = "16UC1";
+      img.is_bigendian = 0;
+      img.step = raw.width * 2;
+      img.data.resize(raw.data.size() * 2);
+      std::memcpy(img.data.data(), raw.data.data(), img.data.size());
+      bag.write("/camera/depth/image_rect", t, img);
+      sensor_msgs::CameraInfo info = info0;
+      info.header.stamp = t;
+      info.header.seq = image_seq++;
+      bag.write("/camera/depth/camera_info", t, info);
+      geometry_msgs::PoseStamped pose;
+      pose.header.stamp = t;
+      pose.header.frame_id = "map";
+      const geometry_msgs::Transform tr = toTransform(cf.truth.T_W_C);
+      pose.pose.position.x = tr.translation.x;
+      pose.pose.position.y = tr.translation.y;
+      pose.pose.position.z = tr.translation.z;
+      pose.pose.orientation = tr.rotation;
+      bag.write("/rig_sim/camera_pose", t, pose);
+      tf2_msgs::TFMessage tf;
+      tf.transforms.push_back(tfMsg(t, "map", "camera_gt", cf.truth.T_W_C));
+      bag.write("/tf", t, tf);
+      ++frames;
+    }
+    for (; li < link.size(); ++li) rig.write(link[li]);
+  }
+  bag.close();
+  const double total_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_start).count();
+  std::printf(
+      "make_scenario_bag: %s: %d frames, %d rig state messages, %.1f s simulated -> %s "
+      "(%.0f ms total, render+noise %.1f ms/frame)\n",
+      scenario.name.c_str(), frames, rig.stateMessages(), sim.now(), path.c_str(), total_ms,
+      frames ? render_ms / frames : 0.0);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "make_scenario_bag: " << e.what() << "\n";
+    return 1;
+  }
+}
