@@ -33,6 +33,12 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
       << cell_size << " = " << height % cell_size << ")";
     problems.push_back(s.str());
   }
+  if (!(edge_jump_rel >= 0.0 && edge_jump_rel < 1.0))
+    problems.push_back("edge_jump_rel must lie in [0, 1)");
+  if (!(edge_jump_min_m >= 0.0)) problems.push_back("edge_jump_min_m must be >= 0 m");
+  if (normal_radius_cells < 0 || normal_radius_cells > 4)
+    problems.push_back("normal_radius_cells must lie in [0, 4]");
+  if (!(normal_merge_dist_m > 0.0)) problems.push_back("normal_merge_dist_m must be > 0 m");
   if (!(min_valid_fraction > 0.0 && min_valid_fraction <= 1.0))
     problems.push_back("min_valid_fraction must lie in (0, 1]");
   if (!(min_eigenvalue_m2 > 0.0 && std::isfinite(min_eigenvalue_m2)))
@@ -42,7 +48,25 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
 
 namespace {
 
-enum class CellOutcome { kKept, kInvalid, kDegenerate };
+enum class CellOutcome { kKept, kInvalid, kDegenerate, kEdge };
+
+// True when two 4-neighbouring valid pixels of the cell differ by more than the edge threshold.
+bool spansEdge(const DepthImage& depth, int u0, int v0, int n, const PcaConfig& config) {
+  const float rel = static_cast<float>(config.edge_jump_rel);
+  const float floor_m = static_cast<float>(config.edge_jump_min_m);
+  auto jump = [&](float a, float b) {
+    return a > 0.0f && b > 0.0f && std::abs(a - b) > std::max(floor_m, rel * std::min(a, b));
+  };
+  for (int v = v0; v < v0 + n; ++v) {
+    const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
+    const float* below = row + depth.width;
+    for (int u = u0; u < u0 + n; ++u) {
+      if (u + 1 < u0 + n && jump(row[u], row[u + 1])) return true;
+      if (v + 1 < v0 + n && jump(row[u], below[u])) return true;
+    }
+  }
+  return false;
+}
 
 // Reduces one grid cell; u_ray/v_ray hold (u - cx)/fx per column and (v - cy)/fy per row.
 CellOutcome reduceCell(const DepthImage& depth, const std::vector<float>& u_ray,
@@ -72,6 +96,7 @@ CellOutcome reduceCell(const DepthImage& depth, const std::vector<float>& u_ray,
     if ((v - v0 + 1) * n - count > n * n - min_valid) return CellOutcome::kInvalid;
   }
   if (count < min_valid || count < 3) return CellOutcome::kInvalid;
+  if (config.edge_jump_rel > 0.0 && spansEdge(depth, u0, v0, n, config)) return CellOutcome::kEdge;
 
   const double inv = 1.0 / count;
   const Eigen::Vector3d mean(sx * inv, sy * inv, sz * inv);
@@ -119,6 +144,41 @@ CellOutcome reduceCell(const DepthImage& depth, const std::vector<float>& u_ray,
   cell->surface_variation = static_cast<float>(sum > 0.0 ? lambda(0) / sum : 0.0);
   cell->det = static_cast<float>(lambda.prod());
   return CellOutcome::kKept;
+}
+
+// Re-estimates each cell's normal from the pooled scatter of the cells around it (sufficient
+// statistics: count, mean, covariance), skipping neighbours whose mean is far from the cell's.
+void poolNormals(const PcaConfig& config, CellCloud* cloud) {
+  const int r = config.normal_radius_cells;
+  const double max_d2 = config.normal_merge_dist_m * config.normal_merge_dist_m;
+  std::vector<Eigen::Vector3f> normals(cloud->cells.size());
+  for (std::size_t i = 0; i < cloud->cells.size(); ++i) {
+    const Cell& c = cloud->cells[i];
+    const Eigen::Vector3d m0 = c.mean_C.cast<double>();
+    double n = 0.0;
+    Eigen::Vector3d s1 = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d s2 = Eigen::Matrix3d::Zero();  // sum of outer products about m0
+    for (int y = c.gy - r; y <= c.gy + r; ++y)
+      for (int x = c.gx - r; x <= c.gx + r; ++x) {
+        const int j = cloud->cellAt(x, y);
+        if (j < 0) continue;
+        const Cell& o = cloud->cells[j];
+        const Eigen::Vector3d d = o.mean_C.cast<double>() - m0;
+        if (d.squaredNorm() > max_d2) continue;
+        const double k = o.n_valid;
+        n += k;
+        s1 += k * d;
+        s2 += (k - 1.0) * o.cov.cast<double>() + k * d * d.transpose();
+      }
+    const Eigen::Vector3d mean = s1 / n;
+    const Eigen::Matrix3d scatter = s2 - n * mean * mean.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(scatter);
+    Eigen::Vector3d normal = es.eigenvectors().col(0).normalized();
+    if (normal.dot(m0) > 0.0) normal = -normal;
+    normals[i] = normal.allFinite() ? normal.cast<float>() : c.normal_C;
+  }
+  for (std::size_t i = 0; i < normals.size(); ++i) cloud->cells[i].normal_C = normals[i];
 }
 
 }  // namespace
@@ -176,8 +236,12 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
       case CellOutcome::kDegenerate:
         ++cloud.stats.pruned_degenerate;
         break;
+      case CellOutcome::kEdge:
+        ++cloud.stats.pruned_edge;
+        break;
     }
   }
+  if (config.normal_radius_cells > 0) poolNormals(config, &cloud);
   cloud.stats.total = n_cells;
   cloud.stats.retained = static_cast<int>(cloud.cells.size());
   return cloud;

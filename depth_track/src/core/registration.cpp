@@ -157,7 +157,11 @@ MatchResult associate(const CellCloud& reference, const CellCloud& current, cons
         if (d2 > dist_max2) continue;
         const float cosang = n.dot(rc.normal_C);
         if (cosang < cos_min) continue;
-        const float cost = d2 + w2 * (n - rc.normal_C).squaredNorm();
+        // Rank candidates by their offset along the reference surface, not by the full 3D
+        // distance: picking the nearest of several noisy depths selects whichever noise happens
+        // to agree with the current estimate, which pins the estimate where it is.
+        const float along = (p - rc.mean_C).dot(rc.normal_C);
+        const float cost = d2 - along * along + w2 * (n - rc.normal_C).squaredNorm();
         if (cost < best_c) {
           best_c = cost;
           best = r;

@@ -18,9 +18,14 @@ constexpr double kRadToDeg = 180.0 / M_PI;
 
 std::vector<std::string> TrackerConfig::validate(const PinholeIntrinsics& intrinsics) const {
   std::vector<std::string> p = intrinsics.validate();
+  for (const auto& s : prefilter.validate(intrinsics.width, intrinsics.height)) p.push_back(s);
   for (const auto& s : pca.validate(intrinsics.width, intrinsics.height)) p.push_back(s);
   for (const auto& s : registration.validate()) p.push_back(s);
-  if (icp_frames < 1) p.push_back("icp_frames must be >= 1");
+  if (icp_frames < 0) p.push_back("icp_frames must be >= 0 (0 = adaptive keyframes)");
+  if (!(keyframe_dist_m > 0.0)) p.push_back("keyframe_dist_m must be > 0 m");
+  if (!(keyframe_angle_deg > 0.0)) p.push_back("keyframe_angle_deg must be > 0 deg");
+  if (!(keyframe_min_overlap >= 0.0 && keyframe_min_overlap <= 1.0))
+    p.push_back("keyframe_min_overlap must lie in [0, 1]");
   if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
   if (!(max_jump_m > 0.0)) p.push_back("max_jump_m must be > 0 m");
   if (!(max_jump_deg > 0.0)) p.push_back("max_jump_deg must be > 0 deg");
@@ -57,8 +62,15 @@ FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
   st.stamp_s = stamp_s;
   checkFrameSize(depth, intrinsics_);
 
-  CellCloud cells = reduceToCells(depth, intrinsics_, config_.pca, config_.threads);
-  st.ms_reduce = msSince(t0);
+  CellCloud cells;
+  if (config_.prefilter.type == PrefilterType::kNone) {
+    cells = reduceToCells(depth, intrinsics_, config_.pca, config_.threads);
+  } else {
+    const DepthImage filtered = applyPrefilter(depth, config_.prefilter, config_.threads);
+    st.ms_prefilter = msSince(t0);
+    cells = reduceToCells(filtered, intrinsics_, config_.pca, config_.threads);
+  }
+  st.ms_reduce = msSince(t0) - st.ms_prefilter;
   st.cells = static_cast<int>(cells.cells.size());
 
   Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
@@ -143,7 +155,18 @@ FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
     st.failure = failure;
   }
   ++frames_since_refresh_;
-  if (st.tracked && frames_since_refresh_ >= config_.icp_frames) {
+  bool refresh = false;
+  if (config_.icp_frames >= 1) {
+    refresh = frames_since_refresh_ >= config_.icp_frames;
+  } else if (st.tracked) {
+    const Eigen::Isometry3d from_key = T_W_Cref_.inverse() * T_W_C_;
+    const double overlap =
+        reference_.cells.empty() ? 0.0 : static_cast<double>(st.matches) / reference_.cells.size();
+    refresh = from_key.translation().norm() > config_.keyframe_dist_m ||
+              rotationAngle(from_key) * kRadToDeg > config_.keyframe_angle_deg ||
+              overlap < config_.keyframe_min_overlap;
+  }
+  if (st.tracked && refresh) {
     reference_ = cells;
     T_W_Cref_ = T_W_C_;
     frames_since_refresh_ = 0;

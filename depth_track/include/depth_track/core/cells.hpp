@@ -29,6 +29,7 @@ struct ReductionStats {
   int retained = 0;           ///< cells kept
   int pruned_invalid = 0;     ///< dropped for missing depth
   int pruned_degenerate = 0;  ///< dropped because the points were collinear / degenerate
+  int pruned_edge = 0;        ///< dropped because the cell spans a depth discontinuity
 };
 
 /// The reduced frame: kept cells plus a grid lookup (grid_w * grid_h entries, -1 = pruned).
@@ -50,6 +51,18 @@ struct CellCloud {
 struct PcaConfig {
   int cell_size = 5;                ///< pixels per cell side; one of 2, 4, 5, 8, 10, 16, 32
   double min_valid_fraction = 1.0;  ///< 1.0 = the thesis's rule: any missing pixel prunes the cell
+  /// A cell whose neighbouring pixels differ in depth by more than
+  /// max(edge_jump_min_m, edge_jump_rel * depth) spans an occluding edge: its "plane" would join
+  /// foreground and background, and it moves unlike either, so it is pruned. edge_jump_rel = 0
+  /// switches the test off.
+  double edge_jump_rel = 0.04;
+  double edge_jump_min_m = 0.03;
+  /// Normals from (2r+1)^2 neighbouring cells: r = 0 is the thesis's per-cell normal; r = 1 pools
+  /// the 3x3 cells around each cell (those within normal_merge_dist_m of its mean), which makes
+  /// normals of noisy sensors (Kinect, D435) good enough that pair offsets along a surface do
+  /// not leak into the point-to-plane residual. Mean and covariance stay the cell's own.
+  int normal_radius_cells = 1;
+  double normal_merge_dist_m = 0.1;
   /// Regulariser added to covariances for cov_inv_sqrt, m^2: (1 mm)^2, about the depth noise of a
   /// good sensor, so the Förstner–Moonen metric does not weigh sub-noise thicknesses.
   double min_eigenvalue_m2 = 1e-6;

@@ -10,14 +10,24 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/prefilter.hpp"
 #include "depth_track/core/registration.hpp"
 
 namespace depth_track {
 
 struct TrackerConfig {
+  PrefilterConfig prefilter;
   PcaConfig pca;
   RegistrationConfig registration;
-  int icp_frames = 1;             ///< frames between reference refreshes (ICPFrames)
+  /// Reference refresh: N >= 1 refreshes every N frames (the thesis's ICPFrames); 0 keeps a
+  /// keyframe until the camera has moved keyframe_dist_m or turned keyframe_angle_deg from it,
+  /// or fewer than keyframe_min_overlap of its cells still find a partner. Registering against
+  /// a keyframe instead of the previous frame stops per-registration errors adding up at rest
+  /// and at slow speed.
+  int icp_frames = 0;
+  double keyframe_dist_m = 0.10;
+  double keyframe_angle_deg = 5.0;
+  double keyframe_min_overlap = 0.5;
   double max_error_rms_m = 0.02;  ///< larger residual = failed frame, metres
   double max_jump_m = 0.15;       ///< larger correction of the prediction = failed frame, metres
   double max_jump_deg = 15.0;     ///< ... degrees
@@ -35,7 +45,7 @@ struct FrameStatus {
   int cells = 0;
   int candidates = 0, matches = 0, fm_matches = 0, duplicates_broken = 0, iterations = 0;
   double error_rms_m = 0.0;
-  double ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
+  double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
 };
 

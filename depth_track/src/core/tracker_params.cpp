@@ -1,0 +1,218 @@
+#include "depth_track/core/tracker_params.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace depth_track {
+
+namespace {
+
+double toDouble(const std::string& name, const std::string& v) {
+  std::size_t used = 0;
+  double d;
+  try {
+    d = std::stod(v, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used == 0 || used != v.size() || !std::isfinite(d))
+    throw std::invalid_argument("parameter " + name + ": '" + v + "' is not a finite number");
+  return d;
+}
+
+int toInt(const std::string& name, const std::string& v) {
+  const double d = toDouble(name, v);
+  if (d != std::floor(d) || std::abs(d) > 1e9)
+    throw std::invalid_argument("parameter " + name + ": '" + v + "' is not an integer");
+  return static_cast<int>(d);
+}
+
+bool toBool(const std::string& name, const std::string& v) {
+  if (v == "true" || v == "on" || v == "1" || v == "yes") return true;
+  if (v == "false" || v == "off" || v == "0" || v == "no") return false;
+  throw std::invalid_argument("parameter " + name + ": '" + v + "' is not on/off (true/false)");
+}
+
+std::string fmt(double d) {
+  std::ostringstream s;
+  s << d;
+  return s.str();
+}
+
+template <typename Member>
+ParamSpec num(const char* name, const char* unit, const char* help, Member member) {
+  return {name, unit, help,
+          [member](const TrackerConfig& c) { return fmt(member(const_cast<TrackerConfig&>(c))); },
+          [member, name](TrackerConfig& c, const std::string& v) {
+            using T = std::remove_reference_t<decltype(member(c))>;
+            if constexpr (std::is_same_v<T, int>) {
+              member(c) = toInt(name, v);
+            } else if constexpr (std::is_same_v<T, bool>) {
+              member(c) = toBool(name, v);
+            } else {
+              member(c) = toDouble(name, v);
+            }
+          }};
+}
+
+std::vector<ParamSpec> makeParams() {
+  constexpr double kDeg = M_PI / 180.0;
+  std::vector<ParamSpec> p;
+  // ---- prefilter (thesis fig. 5.1 PreFilter, Ksz, Spatial_Const, Depth_Const) ----
+  p.push_back(
+      {"prefilter", "", "depth prefilter: none | bilateral | crop",
+       [](const TrackerConfig& c) { return toString(c.prefilter.type); },
+       [](TrackerConfig& c, const std::string& v) { c.prefilter.type = parsePrefilterType(v); }});
+  p.push_back({"bilateral_mode", "", "bilateral kernel: full (Ksz x Ksz) | separable",
+               [](const TrackerConfig& c) {
+                 return std::string(
+                     c.prefilter.bilateral_mode == BilateralMode::kFull ? "full" : "separable");
+               },
+               [](TrackerConfig& c, const std::string& v) {
+                 c.prefilter.bilateral_mode = parseBilateralMode(v);
+               }});
+  p.push_back(num("bilateral_kernel", "px", "bilateral kernel side Ksz (odd)",
+                  [](TrackerConfig& c) -> int& { return c.prefilter.kernel_size_px; }));
+  p.push_back(num("bilateral_spatial_sigma", "px", "bilateral spatial sigma (Spatial_Const)",
+                  [](TrackerConfig& c) -> double& { return c.prefilter.spatial_sigma_px; }));
+  p.push_back(num("bilateral_depth_sigma", "m", "bilateral depth sigma (Depth_Const in metres)",
+                  [](TrackerConfig& c) -> double& { return c.prefilter.depth_sigma_m; }));
+  p.push_back(num("crop_x", "px", "crop: left column kept",
+                  [](TrackerConfig& c) -> int& { return c.prefilter.crop_x_px; }));
+  p.push_back(num("crop_y", "px", "crop: top row kept",
+                  [](TrackerConfig& c) -> int& { return c.prefilter.crop_y_px; }));
+  p.push_back(num("crop_width", "px", "crop: columns kept",
+                  [](TrackerConfig& c) -> int& { return c.prefilter.crop_width_px; }));
+  p.push_back(num("crop_height", "px", "crop: rows kept",
+                  [](TrackerConfig& c) -> int& { return c.prefilter.crop_height_px; }));
+  // ---- PCA reduction (CellIX) ----
+  p.push_back(num("cell_size", "px", "PCA cell side: 2, 4, 5, 8, 10, 16 or 32 (CellIX)",
+                  [](TrackerConfig& c) -> int& { return c.pca.cell_size; }));
+  p.push_back(num("min_valid_fraction", "",
+                  "share of valid pixels a cell needs (1 = thesis drop-out rule)",
+                  [](TrackerConfig& c) -> double& { return c.pca.min_valid_fraction; }));
+  p.push_back(
+      num("edge_jump_rel", "",
+          "prune cells whose neighbouring depths jump by more than this share of depth (0 = off)",
+          [](TrackerConfig& c) -> double& { return c.pca.edge_jump_rel; }));
+  p.push_back(num("edge_jump_min", "m", "... and by more than this",
+                  [](TrackerConfig& c) -> double& { return c.pca.edge_jump_min_m; }));
+  p.push_back(num("normal_radius", "cells",
+                  "normals pooled over (2r+1)^2 cells; 0 = per cell (thesis)",
+                  [](TrackerConfig& c) -> int& { return c.pca.normal_radius_cells; }));
+  p.push_back(num("normal_merge_dist", "m", "neighbour cells farther than this are not pooled",
+                  [](TrackerConfig& c) -> double& { return c.pca.normal_merge_dist_m; }));
+  p.push_back(num("cov_regulariser", "m^2", "added to cell covariances for the FM metric",
+                  [](TrackerConfig& c) -> double& { return c.pca.min_eigenvalue_m2; }));
+  // ---- matching (DistMin, CosMin) ----
+  p.push_back(num("dist_min", "m", "max distance between paired cell vertices (DistMin)",
+                  [](TrackerConfig& c) -> double& { return c.registration.match.dist_min_m; }));
+  p.push_back(num("initial_dist", "m",
+                  "first-iteration pairing gate, halved per iteration to dist_min",
+                  [](TrackerConfig& c) -> double& { return c.registration.match.initial_dist_m; }));
+  p.push_back(num("cos_min", "", "min cosine between paired normals (CosMin)",
+                  [](TrackerConfig& c) -> double& { return c.registration.match.cos_min; }));
+  p.push_back(
+      num("normal_weight", "m", "weight of the normal difference in the 6-vector distance",
+          [](TrackerConfig& c) -> double& { return c.registration.match.normal_weight_m; }));
+  p.push_back(
+      num("search_radius", "cells", "image-grid search window around the prediction",
+          [](TrackerConfig& c) -> int& { return c.registration.match.search_radius_cells; }));
+  // ---- registration (RegMethod, FMThresh) ----
+  p.push_back({"method", "", "registration: p2p | p2l | cell_search (RegMethod)",
+               [](const TrackerConfig& c) { return toString(c.registration.method); },
+               [](TrackerConfig& c, const std::string& v) {
+                 c.registration.method = parseRegistrationMethod(v);
+               }});
+  p.push_back(num("fm_thresh", "", "Förstner–Moonen gate for cell_search (FMThresh)",
+                  [](TrackerConfig& c) -> double& { return c.registration.fm_thresh; }));
+  p.push_back(num("max_iterations", "", "ICP iterations (re-matching after each)",
+                  [](TrackerConfig& c) -> int& { return c.registration.max_iterations; }));
+  p.push_back(num("patience", "", "stop after this many iterations without a lower error",
+                  [](TrackerConfig& c) -> int& { return c.registration.patience; }));
+  p.push_back(num("tolerance", "m", "stop when an update moves less than this",
+                  [](TrackerConfig& c) -> double& { return c.registration.tolerance_m; }));
+  p.push_back(num("tolerance_angle", "rad", "... and rotates less than this",
+                  [](TrackerConfig& c) -> double& { return c.registration.tolerance_rad; }));
+  p.push_back(num("robust", "", "Huber weighting of residuals (on/off)",
+                  [](TrackerConfig& c) -> bool& { return c.registration.robust; }));
+  p.push_back(num("huber_delta", "m", "Huber threshold",
+                  [](TrackerConfig& c) -> double& { return c.registration.huber_delta_m; }));
+  p.push_back(num("overlap_mask", "", "drop cells predicted outside the other view (on/off)",
+                  [](TrackerConfig& c) -> bool& { return c.registration.overlap_mask; }));
+  p.push_back(num("min_matches", "", "fewer pairs = failed frame",
+                  [](TrackerConfig& c) -> int& { return c.registration.min_matches; }));
+  // ---- tracker ----
+  p.push_back(num("icp_frames", "",
+                  "frames between reference refreshes (ICPFrames); 0 = adaptive keyframes",
+                  [](TrackerConfig& c) -> int& { return c.icp_frames; }));
+  p.push_back(num("keyframe_dist", "m", "adaptive keyframes: new keyframe after this much travel",
+                  [](TrackerConfig& c) -> double& { return c.keyframe_dist_m; }));
+  p.push_back(num("keyframe_angle", "deg", "... or this much rotation",
+                  [](TrackerConfig& c) -> double& { return c.keyframe_angle_deg; }));
+  p.push_back(num("keyframe_min_overlap", "",
+                  "... or when fewer of its cells than this share find a partner",
+                  [](TrackerConfig& c) -> double& { return c.keyframe_min_overlap; }));
+  p.push_back(num("max_error", "m", "larger registration residual RMS = failed frame",
+                  [](TrackerConfig& c) -> double& { return c.max_error_rms_m; }));
+  p.push_back(num("max_jump", "m", "larger correction of the prediction = failed frame",
+                  [](TrackerConfig& c) -> double& { return c.max_jump_m; }));
+  p.push_back(num("max_jump_angle", "deg", "larger rotation correction = failed frame",
+                  [](TrackerConfig& c) -> double& { return c.max_jump_deg; }));
+  p.push_back(num("constant_velocity", "", "predict with the last motion (on/off)",
+                  [](TrackerConfig& c) -> bool& { return c.constant_velocity; }));
+  (void)kDeg;
+  return p;
+}
+
+}  // namespace
+
+const std::vector<ParamSpec>& trackerParams() {
+  static const std::vector<ParamSpec> params = makeParams();
+  return params;
+}
+
+void setTrackerParam(TrackerConfig& config, const std::string& name, const std::string& value) {
+  for (const ParamSpec& p : trackerParams())
+    if (p.name == name) {
+      try {
+        p.set(config, value);
+      } catch (const std::invalid_argument& e) {
+        const std::string what = e.what();
+        if (what.rfind("parameter ", 0) == 0) throw;
+        throw std::invalid_argument("parameter " + name + ": " + what);
+      }
+      return;
+    }
+  throw std::invalid_argument("unknown tracker parameter '" + name + "'");
+}
+
+void loadTrackerParamsYaml(const std::string& path, TrackerConfig& config) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::invalid_argument(path + ": cannot open the config file");
+  } catch (const YAML::Exception& e) {
+    throw std::invalid_argument(path + ":" + std::to_string(e.mark.line + 1) + ": " + e.msg);
+  }
+  if (root["tracker"]) root = root["tracker"];
+  if (!root.IsMap()) throw std::invalid_argument(path + ": expected a map of tracker parameters");
+  for (const auto& kv : root) {
+    const std::string key = kv.first.as<std::string>();
+    const int line = kv.first.Mark().line + 1;
+    if (!kv.second.IsScalar())
+      throw std::invalid_argument(path + ":" + std::to_string(line) + ": " + key +
+                                  " must be a single value");
+    try {
+      setTrackerParam(config, key, kv.second.as<std::string>());
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(path + ":" + std::to_string(line) + ": " + e.what());
+    }
+  }
+}
+
+}  // namespace depth_track
