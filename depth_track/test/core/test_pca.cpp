@@ -40,6 +40,7 @@ TEST(Pca, CovarianceAndEigenvectorsMatchADirectComputation) {
   PinholeIntrinsics K = PinholeIntrinsics::isotropic(40, 40, 458.0);
   PcaConfig cfg;
   cfg.cell_size = 8;
+  cfg.normal_radius_cells = 0;  // the cell's own normal
   const CellCloud cloud = reduceToCells(depth, K, cfg);
   ASSERT_EQ(cloud.cells.size(), 25u);
   const Cell& c = cloud.cells[7];
@@ -135,4 +136,42 @@ TEST(Pca, ThreadCountDoesNotChangeTheResult) {
   ASSERT_EQ(a.cells.size(), b.cells.size());
   EXPECT_EQ(a.grid_index, b.grid_index);
   for (std::size_t i = 0; i < a.cells.size(); ++i) ASSERT_EQ(a.cells[i].mean_C, b.cells[i].mean_C);
+}
+
+TEST(Pca, PooledNormalsAreCloserToTheTruthOnANoisyPlane) {
+  // 10 mm depth noise at 2 m (a Kinect-class sensor): per-cell normals of 5x5 px cells scatter by
+  // tens of degrees; pooling 5x5 cells gives 25x the support and a much smaller error.
+  const Eigen::Vector3d n_true = Eigen::Vector3d(0.2, -0.1, -1.0).normalized();
+  DepthImage depth = renderPlanes({{n_true, -2.0}}, l515(), Eigen::Isometry3d::Identity());
+  std::mt19937 rng(11);
+  std::normal_distribution<float> noise(0.0f, 0.01f);
+  for (float& d : depth.data) d += noise(rng);
+  auto mean_error_deg = [&](int radius) {
+    PcaConfig cfg;
+    cfg.normal_radius_cells = radius;
+    cfg.edge_jump_rel = 0.0;  // noise this strong would read as edges
+    const CellCloud cloud = reduceToCells(depth, l515(), cfg);
+    double sum = 0.0;
+    for (const Cell& c : cloud.cells)
+      sum += std::acos(std::min(1.0, c.normal_C.cast<double>().dot(n_true))) * 180.0 / M_PI;
+    return sum / cloud.cells.size();
+  };
+  const double own = mean_error_deg(0), pooled = mean_error_deg(2);
+  EXPECT_GT(own, 20.0);
+  EXPECT_LT(pooled, own / 3.0);
+}
+
+TEST(Pca, EdgeCellsArePruned) {
+  // A box face 1 m in front of a wall 3 m away: cells straddling the silhouette are pruned.
+  DepthImage depth(640, 480, 3.0f);
+  for (int v = 100; v < 300; ++v)
+    for (int u = 102; u < 402; ++u) depth.at(u, v) = 1.0f;
+  PcaConfig cfg;
+  const CellCloud cloud = reduceToCells(depth, l515(), cfg);
+  // Silhouette columns 102 and 402 and rows 100 (cell boundary) and 300 (cell boundary): the
+  // vertical edges cut 40 cell rows each; the horizontal ones lie on cell boundaries.
+  EXPECT_EQ(cloud.stats.pruned_edge, 2 * 40);
+  EXPECT_EQ(cloud.cellAt(102 / 5, 150 / 5), -1);
+  cfg.edge_jump_rel = 0.0;
+  EXPECT_EQ(reduceToCells(depth, l515(), cfg).stats.pruned_edge, 0);
 }

@@ -180,7 +180,7 @@ TEST(Tracker, BadFramesAreFlaggedNeverNan) {
   EXPECT_NEAR(s.T_W_C.translation().x(), 0.01, 1e-3);
   TrackerConfig bad;
   bad.pca.cell_size = 7;
-  bad.icp_frames = 0;
+  bad.icp_frames = -1;
   try {
     Tracker t(K, bad);
     FAIL() << "a bad config must throw";
