@@ -18,6 +18,7 @@ enum class PrefilterType {
 /// "none" | "bilateral" | "crop" (or the thesis codes "0" | "1" | "2"); throws
 /// std::invalid_argument naming any other value.
 PrefilterType parsePrefilterType(const std::string& name);
+/// "none" | "bilateral" | "crop".
 std::string toString(PrefilterType type);
 
 /// How the bilateral kernel is evaluated.

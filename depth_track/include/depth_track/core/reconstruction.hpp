@@ -24,6 +24,7 @@ struct ReconstructionConfig {
   double max_depth_sigmas = 4.0;
   double depth_margin_m = 0.01;  ///< metres, absolute slack of the span guard
 
+  /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
 };
 

@@ -78,13 +78,14 @@ std::vector<std::pair<std::size_t, std::size_t>> associateStamps(
     const std::vector<double>& query_s, const std::vector<double>& reference_s,
     double max_gap_s = 0.02);
 
-/// Pairs an estimated trajectory with ground truth by nearest stamp (within max_gap_s); poses
-/// with non-finite entries are dropped. `est` and `gt` of the result have equal length.
+/// Estimated and ground-truth poses paired by stamp (equal lengths, estimate order).
 struct AssociatedTrajectories {
   std::vector<double> stamps_s;  ///< the estimate's stamps
   std::vector<Eigen::Isometry3d> est_T_W_C;
   std::vector<Eigen::Isometry3d> gt_T_W_C;
 };
+/// Pairs an estimated trajectory with ground truth by nearest stamp (within max_gap_s); poses
+/// with non-finite entries are dropped. `est` and `gt` of the result have equal length.
 AssociatedTrajectories associateTrajectories(const Trajectory& est, const Trajectory& gt,
                                              double max_gap_s = 0.02);
 
