@@ -87,7 +87,14 @@ void FirmwareBoard::update(uint32_t now_us) {
   if (frames_.due(t)) sendStream();
 }
 
+FirmwareBoard::SeenCommand* FirmwareBoard::findSeen(uint32_t seq, MsgId id) {
+  for (auto& c : seen_)
+    if (c.used && c.seq == seq && c.id == id) return &c;
+  return nullptr;
+}
+
 void FirmwareBoard::sendAck(uint32_t seq, MsgId id, AckStatus status) {
+  if (SeenCommand* c = findSeen(seq, id)) c->status = status;
   Ack a;
   a.acked_seq = seq;
   a.acked_id = id;
@@ -117,6 +124,23 @@ void FirmwareBoard::onError(DecodeError e, size_t discarded) {
 void FirmwareBoard::onFrame(const Frame& f) {
   if (f.board != board_) return;                   // for another board on a shared link
   if (static_cast<uint8_t>(f.id) >= 0x80) return;  // board->host frames are not commands
+  // vers, para and ping only report: they run again on a repeat. Everything else runs once.
+  if (f.id != MsgId::kVers && f.id != MsgId::kPara && f.id != MsgId::kPing) {
+    if (const SeenCommand* c = findSeen(f.seq, f.id)) {
+      Ack a;
+      a.acked_seq = c->seq;
+      a.acked_id = c->id;
+      a.status = c->status;
+      send(a);
+      return;
+    }
+    SeenCommand& slot = seen_[seen_next_];
+    seen_next_ = (seen_next_ + 1) % kSeenCommands;
+    slot.used = true;
+    slot.seq = f.seq;
+    slot.id = f.id;
+    slot.status = AckStatus::kAccepted;
+  }
   switch (f.id) {
     case MsgId::kPing: {
       CmdPing ping;

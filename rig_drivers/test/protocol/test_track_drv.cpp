@@ -412,3 +412,29 @@ TEST(TrackDrv, CoarseLoopStillLandsExactlyAndKeepsTheFrameClock) {
   const double t = (frames.back().board_time_ms - frames[frames_before].board_time_ms) * 1e-3;
   EXPECT_NEAR(static_cast<double>(frames.size() - frames_before - 1), t * 30.0, 1.0);
 }
+
+TEST(TrackDrv, RetransmittedCommandRunsOnce) {
+  Rig rig;
+  rig.home();
+  rp::CmdTrackMove m;
+  m.target_um = 10000;
+  m.flags = rp::CmdTrackMove::kRelative;
+  const auto frame = rp::encodeMessage(rp::BoardId::kTrack, 42, m);
+  rig.drv.receive(frame.data(), frame.size());
+  rig.run(0.05);
+  rig.drv.receive(frame.data(), frame.size());  // host retries: ack lost on the way back
+  auto acks = rig.hw.out.acksFor(42);
+  ASSERT_EQ(acks.size(), 2u);
+  EXPECT_EQ(acks[1].status, AckStatus::kAccepted);  // still running: same answer again
+  ASSERT_EQ(rig.runUntilDone(42, 2.0), st(AckStatus::kDone));
+  rig.drv.receive(frame.data(), frame.size());  // and once more after completion
+  rig.run(1.0);
+  acks = rig.hw.out.acksFor(42);
+  EXPECT_EQ(acks.back().status, AckStatus::kDone);
+  EXPECT_NEAR(rig.drv.positionM(), 0.010, kMps);  // moved 10 mm once, not 20 or 30
+  // a new seq with the same payload is a new command
+  const auto again = rp::encodeMessage(rp::BoardId::kTrack, 43, m);
+  rig.drv.receive(again.data(), again.size());
+  ASSERT_EQ(rig.runUntilDone(43, 2.0), st(AckStatus::kDone));
+  EXPECT_NEAR(rig.drv.positionM(), 0.020, kMps);
+}

@@ -157,6 +157,20 @@ class FirmwareBoard : public FrameSink {
   void onFrame(const Frame& f) override;
   void onError(DecodeError e, size_t discarded) override;
 
+  /// Commands with side effects are executed once per seq: a retransmitted command (same seq and
+  /// id, e.g. after a lost ack) only gets its latest ack again, so a relative move never runs
+  /// twice.
+  struct SeenCommand {
+    bool used = false;
+    uint32_t seq = 0;
+    MsgId id = MsgId::kInit;
+    AckStatus status = AckStatus::kAccepted;
+  };
+  static constexpr int kSeenCommands = 16;
+  SeenCommand* findSeen(uint32_t seq, MsgId id);
+  SeenCommand seen_[kSeenCommands];
+  int seen_next_ = 0;
+
   BoardId board_;
   char name_[kNameLen + 1] = {};
   SerialOut& out_;
