@@ -37,6 +37,10 @@ BilateralMode parseBilateralMode(const std::string& name) {
   throw std::invalid_argument("unknown bilateral mode '" + name + "' (expected full or separable)");
 }
 
+std::string toString(BilateralMode mode) {
+  return mode == BilateralMode::kFull ? "full" : "separable";
+}
+
 std::vector<std::string> PrefilterConfig::validate() const {
   std::vector<std::string> problems;
   if (type == PrefilterType::kBilateral) {

@@ -115,6 +115,7 @@ TEST(Prefilter, ParseNamesAndThesisCodes) {
     EXPECT_NE(std::string(e.what()).find("'median'"), std::string::npos);
   }
   EXPECT_EQ(parseBilateralMode("separable"), BilateralMode::kSeparable);
+  EXPECT_EQ(parseBilateralMode(toString(BilateralMode::kFull)), BilateralMode::kFull);
   EXPECT_THROW(parseBilateralMode("fast"), std::invalid_argument);
 }
 

@@ -31,6 +31,8 @@ enum class BilateralMode {
 
 /// "full" | "separable"; throws std::invalid_argument naming any other value.
 BilateralMode parseBilateralMode(const std::string& name);
+/// "full" | "separable".
+std::string toString(BilateralMode mode);
 
 /// Configuration of the prefilter stage. Defaults: the thesis's fig. 5.1 (PreFilter 0, Ksz 31,
 /// Spatial_Const 15.0, Depth_Const 200.0).
