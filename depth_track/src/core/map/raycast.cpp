@@ -18,7 +18,8 @@ using map_detail::Chunk;
 
 namespace {
 
-constexpr int kTile = 4;  // pixels per tile edge for the near/far bounds
+constexpr int kTile = 4;               // pixels per tile edge for the near/far bounds
+constexpr double kRunCapVoxels = 3.0;  // longest occupied run averaged along a ray, voxels
 
 void checkRaycastInput(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_C,
                        const DepthRange& range) {
@@ -32,14 +33,29 @@ void checkRaycastInput(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_
   if (!problems.empty()) throw std::invalid_argument("raycast: " + joinProblems(problems));
 }
 
-// First occupied voxel along the pixel ray: the ray parameter is depth (d_C = (x, y, 1)).
+// Surface depth along a pixel ray (the ray parameter is depth: d_C = (x, y, 1)). Noise makes a
+// surface a shell a few voxels thick, and the first occupied voxel is its near face, biased
+// towards the camera by about the noise; the depth returned is the middle of the first run of
+// consecutive occupied voxels, the run capped at `cap` (depth units) so that a ray grazing a
+// floor does not slide along it.
 struct HitDepth {
-  float depth = 0.0f;
-  bool operator()(const Chunk&, const Block& b, int i, double t_in, double t_out) {
-    if (!map_detail::testBit(b.occupied, i)) return false;
-    depth = static_cast<float>(0.5 * (t_in + t_out));
-    return true;
+  double cap = 0.0;
+  bool found = false;
+  double t_first = 0.0, t_last = 0.0;
+  bool operator()(const Chunk& c, int bi, int i, double t_in, double t_out) {
+    const bool occ = c.occupiedAt(bi, i);
+    if (!found) {
+      if (!occ) return false;
+      found = true;
+      t_first = t_in;
+      t_last = t_out;
+      return t_last - t_first >= cap;
+    }
+    if (!occ || t_in > t_last + 1e-6) return true;  // the run ended (or a skipped gap)
+    t_last = std::min(t_out, t_first + cap);
+    return t_last - t_first >= cap;
   }
+  float depth() const { return static_cast<float>(0.5 * (t_first + t_last)); }
 };
 
 // Depth bounds of an axis-aligned world box of edge `size` at `lo_W` in the camera frame, and the
@@ -110,8 +126,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     const Eigen::Vector3d chunk_lo = ch->coord.cast<double>() * chunk_m;
     if (!viewBox(K, T_C_W, chunk_lo, chunk_m, range.min_m, range.max_m, &cv)) continue;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
-      const Block* b = ch->blocks[bi].get();
-      if (!b || b->n_occupied == 0) continue;
+      if (ch->n_occ[bi] == 0) continue;
       BoxView bv;
       const Eigen::Vector3d lo =
           chunk_lo + Eigen::Vector3d(bi & 7, (bi >> 3) & 7, bi >> 6) * block_m;
@@ -130,6 +145,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
 
   const Eigen::Vector3d o = T_W_C.translation();
   const Eigen::Matrix3d R = T_W_C.linear();
+  const double run_cap_m = kRunCapVoxels * m.s;
   auto rows = [&](int v_begin, int v_end) {
     for (int v = v_begin; v < v_end; ++v) {
       const double y = (v - K.cy) / K.fy;
@@ -144,7 +160,9 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
         if (t0 >= t1) continue;
         const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, y, 1.0);
         HitDepth hit;
-        if (m.walk<true>(o, d, t0, t1, hit)) dst[u] = hit.depth;
+        hit.cap = run_cap_m / d.norm();
+        m.walk<true>(o, d, t0, t1, hit);
+        if (hit.found) dst[u] = hit.depth();
       }
     }
   };
@@ -171,7 +189,9 @@ DepthImage VoxelMap::raycastReference(const PinholeIntrinsics& K, const Eigen::I
     for (int u = 0; u < K.width; ++u) {
       const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
       HitDepth hit;
-      if (m.walk<true, true>(o, d, range.min_m, range.max_m, hit)) out.at(u, v) = hit.depth;
+      hit.cap = kRunCapVoxels * m.s / d.norm();
+      m.walk<true, true>(o, d, range.min_m, range.max_m, hit);
+      if (hit.found) out.at(u, v) = hit.depth();
     }
   }
   return out;

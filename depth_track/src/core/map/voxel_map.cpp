@@ -131,25 +131,29 @@ Eigen::AlignedBox3d VoxelMap::region() const {
 namespace {
 
 // Applies a log-odds change to voxel i of block b (in chunk c); keeps the counters consistent.
-inline void applyUpdate(VoxelMap::Impl& m, Chunk& c, Block& b, int i, float delta) {
+inline void applyUpdate(VoxelMap::Impl& m, Chunk& c, int bi, Block& b, int i, float delta) {
   using namespace map_detail;
-  float l = testBit(b.observed, i) ? b.log_odds[i] : 0.0f;
-  setBit(b.observed, i);
+  float l = b.has(&map_detail::Masks::observed, i) ? b.log_odds[i] : 0.0f;
+  b.set(&map_detail::Masks::observed, i);
   l = std::min(std::max(l + delta, m.l_min), m.l_max);
   b.log_odds[i] = l;
   const bool occ = l > m.l_occ;
-  if (occ != testBit(b.occupied, i)) {
+  if (occ != b.has(&map_detail::Masks::occupied, i)) {
     if (occ) {
-      setBit(b.occupied, i);
+      b.set(&map_detail::Masks::occupied, i);
+      c.occ[bi][i >> 6] |= std::uint64_t{1} << (i & 63);
+      ++c.n_occ[bi];
       if (b.n_occupied++ == 0) ++c.occupied_blocks;
       ++m.occupied_count;
     } else {
-      clearBit(b.occupied, i);
+      b.clear(&map_detail::Masks::occupied, i);
+      c.occ[bi][i >> 6] &= ~(std::uint64_t{1} << (i & 63));
+      --c.n_occ[bi];
       if (--b.n_occupied == 0) --c.occupied_blocks;
       --m.occupied_count;
     }
   }
-  setBit(b.dirty, i);
+  b.set(&map_detail::Masks::dirty, i);
   b.any_dirty = true;
 }
 
@@ -157,11 +161,11 @@ inline void applyUpdate(VoxelMap::Impl& m, Chunk& c, Block& b, int i, float delt
 inline bool claim(VoxelMap::Impl& m, Block& b, int i) {
   using namespace map_detail;
   if (b.touch_frame != m.frame) {
-    b.touched.fill(0);
+    for (auto& w : b.mask) w.touched = 0;
     b.touch_frame = m.frame;
   }
-  if (testBit(b.touched, i)) return false;
-  setBit(b.touched, i);
+  if (b.has(&map_detail::Masks::touched, i)) return false;
+  b.set(&map_detail::Masks::touched, i);
   return true;
 }
 
@@ -229,15 +233,23 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
   int last[3] = {std::numeric_limits<int>::min(), 0, 0};
   Chunk* chunk = nullptr;
   Eigen::Vector3i chunk_coord(std::numeric_limits<int>::min(), 0, 0);
+  struct Pending {
+    Chunk* chunk;
+    Block* block;
+    int block_index;
+    int voxel;
+  };
+  std::vector<Pending> pending;
+  pending.reserve(w);
   for (int v = 0; v < h; ++v) {
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
     for (int u = 0; u < w; ++u) {
       const float z = row[u];
       if (!(z > 0.0f)) continue;
       const Eigen::Vector3f q = Rs * Eigen::Vector3f(xu[u] * z, yv[v] * z, z) + ts;
-      const int x = static_cast<int>(std::floor(q.x()));
-      const int y = static_cast<int>(std::floor(q.y()));
-      const int zz = static_cast<int>(std::floor(q.z()));
+      const int x = map_detail::fastFloor(q.x());
+      const int y = map_detail::fastFloor(q.y());
+      const int zz = map_detail::fastFloor(q.z());
       if (x == last[0] && y == last[1] && zz == last[2]) {
         ++st.fused_pixels;
         continue;
@@ -258,17 +270,27 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
       }
       last[0] = x, last[1] = y, last[2] = zz;
       ++st.fused_pixels;
-      auto& slot = chunk->blocks[map_detail::blockInChunk(x, y, zz)];
+      const int bi = map_detail::blockInChunk(x, y, zz);
+      auto& slot = chunk->blocks[bi];
       if (!slot) {
         slot = std::make_unique<Block>();
         ++m.block_count;
       }
       const int i = map_detail::voxelInBlock(x, y, zz);
-      if (claim(m, *slot, i)) {
-        applyUpdate(m, *chunk, *slot, i, m.l_hit);
+      // The grid is far larger than the caches: fetch the voxel's lines while the rest of the
+      // row is resolved, and update them afterwards.
+      __builtin_prefetch(slot.get());
+      __builtin_prefetch(&slot->mask[i >> 6]);
+      __builtin_prefetch(&slot->log_odds[i]);
+      pending.push_back({chunk, slot.get(), bi, i});
+    }
+    for (const Pending& p : pending) {
+      if (claim(m, *p.block, p.voxel)) {
+        applyUpdate(m, *p.chunk, p.block_index, *p.block, p.voxel, m.l_hit);
         ++st.hit_updates;
       }
     }
+    pending.clear();
   }
 
   // Pass 2: carving along a rotating subset of rays, through blocks that hold returns.
@@ -279,9 +301,10 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
     const Eigen::Vector3d o = T_W_C.translation();
     const Eigen::Matrix3d R = T_W_C.linear();
     const double margin = config_.carve_margin_m;
-    auto miss = [&](Chunk& c, Block& b, int i, double, double) {
+    auto miss = [&](Chunk& c, int bi, int i, double, double) {
+      Block& b = *c.blocks[bi];
       if (claim(m, b, i)) {
-        applyUpdate(m, c, b, i, m.l_miss);
+        applyUpdate(m, c, bi, b, i, m.l_miss);
         ++st.miss_updates;
       }
       return false;
@@ -319,15 +342,15 @@ VoxelState VoxelMap::state(const VoxelKey& k) const {
   const Block* b = impl_->blockAt(k.x(), k.y(), k.z());
   if (!b) return VoxelState::kUnknown;
   const int i = map_detail::voxelInBlock(k.x(), k.y(), k.z());
-  if (!map_detail::testBit(b->observed, i)) return VoxelState::kUnknown;
-  return map_detail::testBit(b->occupied, i) ? VoxelState::kOccupied : VoxelState::kFree;
+  if (!b->has(&map_detail::Masks::observed, i)) return VoxelState::kUnknown;
+  return b->has(&map_detail::Masks::occupied, i) ? VoxelState::kOccupied : VoxelState::kFree;
 }
 
 float VoxelMap::logOdds(const VoxelKey& k) const {
   const Block* b = impl_->blockAt(k.x(), k.y(), k.z());
   if (!b) return 0.0f;
   const int i = map_detail::voxelInBlock(k.x(), k.y(), k.z());
-  return map_detail::testBit(b->observed, i) ? b->log_odds[i] : 0.0f;
+  return b->has(&map_detail::Masks::observed, i) ? b->log_odds[i] : 0.0f;
 }
 
 void VoxelMap::forEachOccupied(const std::function<void(const VoxelKey&)>& f) const {
@@ -338,7 +361,7 @@ void VoxelMap::forEachOccupied(const std::function<void(const VoxelKey&)>& f) co
       if (!b || b->n_occupied == 0) continue;
       const VoxelKey base = ch->coord * 64 + VoxelKey(bi & 7, (bi >> 3) & 7, bi >> 6) * 8;
       for (int w = 0; w < 8; ++w) {
-        std::uint64_t bits = b->occupied[w];
+        std::uint64_t bits = b->mask[w].occupied;
         while (bits) {
           const int i = w * 64 + __builtin_ctzll(bits);
           bits &= bits - 1;
@@ -364,7 +387,8 @@ std::size_t VoxelMap::observedCount() const {
   for (const auto& ch : impl_->chunks)
     for (const auto& b : ch->blocks)
       if (b)
-        for (std::uint64_t w : b->observed) n += static_cast<std::size_t>(__builtin_popcountll(w));
+        for (const auto& w : b->mask)
+          n += static_cast<std::size_t>(__builtin_popcountll(w.observed));
   return n;
 }
 
@@ -386,7 +410,7 @@ const octomap::OcTree& VoxelMap::flush() {
       if (!b || !b->any_dirty) continue;
       const VoxelKey base = ch->coord * 64 + VoxelKey(bi & 7, (bi >> 3) & 7, bi >> 6) * 8;
       for (int w = 0; w < 8; ++w) {
-        std::uint64_t bits = b->dirty[w];
+        std::uint64_t bits = b->mask[w].dirty;
         while (bits) {
           const int i = w * 64 + __builtin_ctzll(bits);
           bits &= bits - 1;
@@ -396,7 +420,7 @@ const octomap::OcTree& VoxelMap::flush() {
               static_cast<octomap::key_type>(base.z() + (i >> 6) + kOffset));
           m.tree->setNodeValue(key, b->log_odds[i], true);
         }
-        b->dirty[w] = 0;
+        b->mask[w].dirty = 0;
       }
       b->any_dirty = false;
       any = true;

@@ -26,31 +26,46 @@ inline int voxelInBlock(int x, int y, int z) { return (x & 7) | ((y & 7) << 3) |
 inline int blockInChunk(int x, int y, int z) {
   return ((x >> 3) & 7) | (((y >> 3) & 7) << 3) | (((z >> 3) & 7) << 6);
 }
-inline bool testBit(const std::array<std::uint64_t, 8>& m, int i) {
-  return (m[i >> 6] >> (i & 63)) & 1u;
+// floor() without a libm call (the default x86-64 target has no rounding instruction).
+inline int fastFloor(double x) {
+  const int i = static_cast<int>(x);
+  return i - (x < i);
 }
-inline void setBit(std::array<std::uint64_t, 8>& m, int i) {
-  m[i >> 6] |= std::uint64_t{1} << (i & 63);
-}
-inline void clearBit(std::array<std::uint64_t, 8>& m, int i) {
-  m[i >> 6] &= ~(std::uint64_t{1} << (i & 63));
+inline int fastFloor(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < i);
 }
 
+// Per-voxel flags of 64 voxels side by side, so one voxel's flags share a cache line.
+struct Masks {
+  std::uint64_t touched = 0;   // updated in frame `touch_frame`
+  std::uint64_t observed = 0;  // log_odds is meaningful
+  std::uint64_t occupied = 0;
+  std::uint64_t dirty = 0;  // changed since the last flush
+};
+using Flag = std::uint64_t Masks::*;
+
 struct Block {
-  std::array<float, kBlockVoxels> log_odds{};  // meaningful where `observed` is set
-  std::array<std::uint64_t, 8> observed{};
-  std::array<std::uint64_t, 8> occupied{};
-  std::array<std::uint64_t, 8> touched{};  // updated in frame `touch_frame`
-  std::array<std::uint64_t, 8> dirty{};    // changed since the last flush
   std::uint32_t touch_frame = 0;
   int n_occupied = 0;
   bool any_dirty = false;
+  std::array<Masks, 8> mask{};
+  std::array<float, kBlockVoxels> log_odds{};  // meaningful where `observed` is set
+
+  bool has(Flag f, int i) const { return (mask[i >> 6].*f >> (i & 63)) & 1u; }
+  void set(Flag f, int i) { mask[i >> 6].*f |= std::uint64_t{1} << (i & 63); }
+  void clear(Flag f, int i) { mask[i >> 6].*f &= ~(std::uint64_t{1} << (i & 63)); }
 };
 
 struct Chunk {
   Eigen::Vector3i coord;  // chunk index (voxel index >> 6)
   std::array<std::unique_ptr<Block>, kChunkBlocks> blocks;
   int occupied_blocks = 0;  // blocks with n_occupied > 0
+  // Dense copies of the blocks' occupancy (bits and counts) for ray traversal: a block's 512
+  // occupancy bits are one cache line here, instead of being spread over its 2 KB of state.
+  alignas(64) std::array<std::array<std::uint64_t, 8>, kChunkBlocks> occ{};
+  std::array<std::uint16_t, kChunkBlocks> n_occ{};
+  bool occupiedAt(int bi, int i) const { return (occ[bi][i >> 6] >> (i & 63)) & 1u; }
 };
 
 }  // namespace map_detail
@@ -94,9 +109,10 @@ struct VoxelMap::Impl {
   }
 
   // Walks the ray P(t) = o + t d (world metres; t need not be a distance) for t in [t0, t1) over
-  // voxels of allocated blocks, skipping missing chunks/blocks whole; with kOccupiedOnly it also
-  // skips chunks and blocks without an occupied voxel. f(chunk, block, voxel, t_in, t_out)
-  // returns true to stop. Returns false when the ray ran out.
+  // voxels of allocated blocks, skipping missing chunks/blocks whole; with kOccupiedOnly it skips
+  // chunks and blocks without an occupied voxel instead (and may visit voxels of unallocated
+  // blocks of a chunk when kNoSkip). f(chunk, block index, voxel index, t_in, t_out) returns
+  // true to stop. Returns false when the ray ran out.
   template <bool kOccupiedOnly, bool kNoSkip = false, class F>
   bool walk(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0, double t1, F&& f) const {
     const Eigen::Vector3d O = o * inv_s;
@@ -108,18 +124,18 @@ struct VoxelMap::Impl {
     constexpr double kEps = 1e-9;
     double t = t0;
     while (t < t1) {
-      const int v[3] = {static_cast<int>(std::floor(O.x() + t * D.x())),
-                        static_cast<int>(std::floor(O.y() + t * D.y())),
-                        static_cast<int>(std::floor(O.z() + t * D.z()))};
+      const int v[3] = {map_detail::fastFloor(O.x() + t * D.x()),
+                        map_detail::fastFloor(O.y() + t * D.y()),
+                        map_detail::fastFloor(O.z() + t * D.z())};
       int shift = 0;
       Chunk* c = chunkAt(v[0] >> map_detail::kChunkShift, v[1] >> map_detail::kChunkShift,
                          v[2] >> map_detail::kChunkShift);
-      Block* b = nullptr;
+      int bi = 0;
       if (!c || (kOccupiedOnly && c->occupied_blocks == 0)) {
         shift = map_detail::kChunkShift;
       } else {
-        b = c->blocks[map_detail::blockInChunk(v[0], v[1], v[2])].get();
-        if (!b || (kOccupiedOnly && b->n_occupied == 0)) shift = map_detail::kBlockShift;
+        bi = map_detail::blockInChunk(v[0], v[1], v[2]);
+        if (kOccupiedOnly ? c->n_occ[bi] == 0 : !c->blocks[bi]) shift = map_detail::kBlockShift;
       }
       if (kNoSkip) shift = 0;
       double t_exit = inf;
@@ -130,8 +146,8 @@ struct VoxelMap::Impl {
         if (te < t_exit) t_exit = te;
       }
       t_exit = std::max(t_exit, t);
-      if (shift == 0 && b) {
-        if (f(*c, *b, map_detail::voxelInBlock(v[0], v[1], v[2]), t, std::min(t_exit, t1)))
+      if (shift == 0 && c && (kOccupiedOnly || c->blocks[bi])) {
+        if (f(*c, bi, map_detail::voxelInBlock(v[0], v[1], v[2]), t, std::min(t_exit, t1)))
           return true;
       }
       t = t_exit + kEps;

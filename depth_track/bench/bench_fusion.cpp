@@ -1,0 +1,157 @@
+// Fusion speed: ms per 640x480 frame fused into the voxel map on one core (Release), for the
+// rendered XTest1_05_Chair run with L515 noise at its ground-truth poses, 5 mm voxels, default
+// 4x3x4 m region. Frames cycle through the run, so the map is warm (as in a long run). Reports
+// the median ms per frame, the OctoMap flush cost amortised per frame, memory per occupied voxel,
+// and, for scale, OctoMap's own insertPointCloud on the same frame.
+#include <benchmark/benchmark.h>
+#include <octomap/OcTree.h>
+
+#include <algorithm>
+#include <chrono>
+#include <ctime>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
+
+using namespace depth_track;
+
+namespace {
+
+struct Frames {
+  sim::RenderedRun run;
+  std::vector<DepthImage> depth;
+  std::vector<Eigen::Isometry3d> T_W_C;
+};
+
+const Frames& frames() {
+  static const Frames f = [] {
+    Frames out{sim::makeRun("xtest1_05_chair"), {}, {}};
+    const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+    for (std::size_t i = 0; i < out.run.size(); i += 4) {
+      out.depth.push_back(out.run.renderFrame(i, noise, 42, 2));
+      out.T_W_C.push_back(out.run.T_W_C[i]);
+    }
+    return out;
+  }();
+  return f;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+double msSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// CPU time of this thread, ms: on a machine shared with other jobs the wall time also counts
+// waiting for a core.
+double threadCpuMs() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+// state.range(0): 0 = hit-only, 1 = probabilistic; range(1): carve stride (px).
+void BM_Fuse(benchmark::State& state) {
+  const Frames& f = frames();
+  MapConfig cfg;
+  cfg.model = state.range(0) == 0 ? UpdateModel::kHitOnly : UpdateModel::kProbabilistic;
+  cfg.carve_stride_px = static_cast<int>(state.range(1));
+  VoxelMap map(cfg);
+  map.placeRegion(f.T_W_C.front());
+  for (std::size_t i = 0; i < f.depth.size(); ++i)
+    map.fuse(f.depth[i], f.run.intrinsics, f.T_W_C[i]);
+  std::vector<double> ms, cpu_ms;
+  std::size_t i = 0;
+  for (auto _ : state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = threadCpuMs();
+    const FuseStats st = map.fuse(f.depth[i], f.run.intrinsics, f.T_W_C[i]);
+    cpu_ms.push_back(threadCpuMs() - c0);
+    ms.push_back(msSince(t0));
+    benchmark::DoNotOptimize(st.hit_updates);
+    i = (i + 1) % f.depth.size();
+  }
+  state.counters["median_ms"] = median(ms);
+  state.counters["median_cpu_ms"] = median(cpu_ms);
+  state.counters["occupied"] = static_cast<double>(map.occupiedCount());
+  state.counters["B_per_occ"] =
+      static_cast<double>(map.memoryBytes()) / std::max<std::size_t>(1, map.occupiedCount());
+  state.counters["grid_MB"] = map.memoryBytes() / 1e6;
+  state.SetLabel(toString(cfg.model) +
+                 (cfg.model == UpdateModel::kProbabilistic
+                      ? ", carve stride " + std::to_string(cfg.carve_stride_px)
+                      : std::string()));
+}
+BENCHMARK(BM_Fuse)
+    ->Args({0, 1})
+    ->Args({1, 8})
+    ->Args({1, 4})
+    ->Args({1, 1})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
+// Flush into the OcTree after every k frames; time per frame = (fuse k frames + flush) / k.
+void BM_FuseAndFlush(benchmark::State& state) {
+  const Frames& f = frames();
+  const int k = static_cast<int>(state.range(0));
+  MapConfig cfg;
+  VoxelMap map(cfg);
+  map.placeRegion(f.T_W_C.front());
+  std::vector<double> flush_ms;
+  std::size_t i = 0;
+  for (auto _ : state) {
+    for (int j = 0; j < k; ++j) {
+      map.fuse(f.depth[i], f.run.intrinsics, f.T_W_C[i]);
+      i = (i + 1) % f.depth.size();
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    benchmark::DoNotOptimize(&map.flush());
+    flush_ms.push_back(msSince(t0));
+  }
+  state.counters["flush_ms_per_frame"] = median(flush_ms) / k;
+  state.counters["octree_MB"] = map.octreeMemoryBytes() / 1e6;
+  state.counters["octree_B_per_occ"] =
+      static_cast<double>(map.octreeMemoryBytes()) / std::max<std::size_t>(1, map.occupiedCount());
+  state.SetLabel("probabilistic, flush every " + std::to_string(k) + " frames (time per batch)");
+}
+BENCHMARK(BM_FuseAndFlush)
+    ->Arg(1)
+    ->Arg(30)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(20);
+
+// OctoMap's own insertPointCloud (discretised, ray-cast carving) of the same full frame.
+void BM_OctomapInsertPointCloud(benchmark::State& state) {
+  const Frames& f = frames();
+  octomap::OcTree tree(0.005);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    octomap::Pointcloud cloud;
+    const DepthImage& d = f.depth[i];
+    for (int v = 0; v < d.height; ++v)
+      for (int u = 0; u < d.width; ++u)
+        if (d.at(u, v) > 0) {
+          const Eigen::Vector3d p =
+              f.T_W_C[i] * f.run.intrinsics.backProject(u, v, d.at(u, v)).cast<double>();
+          cloud.push_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                          static_cast<float>(p.z()));
+        }
+    const Eigen::Vector3d o = f.T_W_C[i].translation();
+    state.ResumeTiming();
+    tree.insertPointCloud(cloud, octomap::point3d(o.x(), o.y(), o.z()), -1.0, false, true);
+    i = (i + 1) % f.depth.size();
+  }
+  state.SetLabel("OctoMap insertPointCloud, 5 mm, full frame");
+}
+BENCHMARK(BM_OctomapInsertPointCloud)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+}  // namespace
+
+BENCHMARK_MAIN();

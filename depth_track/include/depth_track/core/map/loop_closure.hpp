@@ -1,0 +1,70 @@
+#pragma once
+/// Loop closure against the map (thesis §2.15, §3.13, fig. 3.28): ray-cast a virtual depth image
+/// from the voxel map at the predicted pose, reduce it to cells, register the current frame's
+/// cells onto them and correct the pose, with gates that reject a correction the map cannot
+/// support. ROS-free core.
+#include <Eigen/Geometry>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/cells.hpp"
+#include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/registration.hpp"
+
+namespace depth_track {
+
+/// Configuration of the loop-closure step (thesis fig. 5.1 names in brackets).
+struct LoopClosureConfig {
+  bool enabled = false;  ///< (ClosedLoop)
+  int cl_step = 10;      ///< attempt on every n-th frame (CLStep)
+  /// Reduction of both the virtual image and the current frame (one grid, so cells pair one to
+  /// one). Edge-spanning cells are kept out as in tracking; 10 px cells average the 5 mm voxel
+  /// staircase of the virtual surface over ~4 voxels at 2 m.
+  PcaConfig pca = [] {
+    PcaConfig p;
+    p.cell_size = 10;
+    p.min_valid_fraction = 0.9;
+    return p;
+  }();
+  RegistrationConfig registration;  ///< method and pair gates of the correcting registration
+  /// Gate 1, sparse model: share of pixels of the virtual image with a return, and its cells.
+  double min_model_fraction = 0.25;
+  int min_model_cells = 200;
+  /// Gate 2, too few matches: pairs used in the final iteration.
+  int min_matches = 100;
+  /// Gate 3, implausible correction: drift between two attempts is millimetres, so a larger
+  /// jump is a mismatch with the map.
+  double max_correction_m = 0.05;
+  double max_correction_deg = 3.0;
+  double max_error_rms_m = 0.015;  ///< residual RMS above this = poor fit, metres
+
+  /// Every problem at once (empty = valid).
+  std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
+};
+
+/// Outcome of one attempt.
+struct LoopClosureResult {
+  bool accepted = false;
+  std::string reason;  ///< "accepted" or why the correction was rejected
+  Eigen::Isometry3d T_W_C =
+      Eigen::Isometry3d::Identity();  ///< corrected pose (= input if rejected)
+  double correction_m = 0.0;          ///< translation of the correction, metres
+  double correction_deg = 0.0;        ///< rotation of the correction, degrees
+  double model_fraction = 0.0;        ///< share of virtual pixels with a return
+  int model_cells = 0, current_cells = 0, matches = 0;
+  double error_rms_m = 0.0;
+  double ms_raycast = 0.0, ms_reduce = 0.0, ms_register = 0.0;
+};
+
+/// One loop-closure attempt for the current full-resolution frame `current` (metres) predicted at
+/// T_W_C_pred: the virtual image is ray-cast with `intrinsics` and `range`, both images are
+/// reduced with config.pca, and the current cells are registered onto the virtual ones from the
+/// identity. Never throws for a poor model or fit (those are rejections with a reason); throws
+/// std::invalid_argument for a bad config or pose and DepthInputError for a frame of the wrong
+/// size. Thread-safe against other const uses of the map.
+LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
+                            const PinholeIntrinsics& intrinsics, const DepthRange& range,
+                            const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config);
+
+}  // namespace depth_track

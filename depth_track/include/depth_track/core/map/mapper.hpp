@@ -1,0 +1,73 @@
+#pragma once
+/// The mapping stage as one object: loop closure every CLStep frames, then fusion of the full
+/// frame at the (corrected) pose; ray casting on request; `.bt` save; per-stage timings. Used the
+/// same way by the offline tool and the nodelet. ROS-free core; not thread-safe (one instance
+/// per camera stream).
+#include <Eigen/Geometry>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/map/loop_closure.hpp"
+#include "depth_track/core/map/voxel_map.hpp"
+
+namespace depth_track {
+
+struct MapperConfig {
+  MapConfig map;
+  LoopClosureConfig loop;
+  DepthRange range;     ///< sensor range used for ray casting (virtual images), metres
+  int flush_every = 0;  ///< frames between flushes into the OcTree (0 = only when saving)
+
+  std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
+};
+
+/// Outcome of Mapper::process for one frame.
+struct MapperFrame {
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();  ///< pose the frame was fused at
+  bool loop_attempted = false;
+  LoopClosureResult loop;  ///< meaningful when loop_attempted
+  FuseStats fuse;
+};
+
+class Mapper {
+ public:
+  /// Places the map region around the start pose T_W_C0. Throws std::invalid_argument listing
+  /// every problem of the config or intrinsics.
+  Mapper(const PinholeIntrinsics& intrinsics, const MapperConfig& config,
+         const Eigen::Isometry3d& T_W_C0 = Eigen::Isometry3d::Identity());
+
+  /// One tracked frame: on every cl_step-th frame (loop closure enabled, map not empty) corrects
+  /// T_W_C against the map, then fuses the frame at the resulting pose. If a correction was
+  /// accepted the caller should hand the returned pose to Tracker::correctPose(). Errors as
+  /// VoxelMap::fuse (the map is unchanged on a throw).
+  MapperFrame process(const DepthImage& depth, const Eigen::Isometry3d& T_W_C);
+  /// Fuses a frame at a known pose (no loop closure), e.g. a ground-truth trajectory.
+  FuseStats fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C);
+  /// Virtual depth image of the map at T_W_C with the camera's intrinsics and range (timed).
+  DepthImage raycast(const Eigen::Isometry3d& T_W_C);
+  /// Flushes into the OcTree and writes `path` (.bt); throws MapIoError naming the path.
+  void save(const std::string& path);
+
+  const VoxelMap& map() const { return map_; }
+  VoxelMap& map() { return map_; }
+  const MapperConfig& config() const { return config_; }
+  int loopAttempts() const { return loop_attempts_; }
+  int loopAccepted() const { return loop_accepted_; }
+  /// Median wall time of fuse calls / ray casts so far, ms (0 when none).
+  double fuseMedianMs() const;
+  double raycastMedianMs() const;
+  /// "fuse_median_ms=X raycast_median_ms=Y loop_closures=A/B" (accepted/attempted).
+  std::string summary() const;
+
+ private:
+  PinholeIntrinsics intrinsics_;
+  MapperConfig config_;
+  VoxelMap map_;
+  int frames_ = 0;
+  int loop_attempts_ = 0, loop_accepted_ = 0;
+  std::vector<double> fuse_ms_, raycast_ms_;
+};
+
+}  // namespace depth_track

@@ -1,0 +1,105 @@
+#include "depth_track/core/map/loop_closure.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "depth_track/core/se3.hpp"
+
+namespace depth_track {
+
+namespace {
+double msSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
+std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& intrinsics) const {
+  std::vector<std::string> p;
+  if (cl_step < 1) p.push_back("cl_step must be >= 1 frame");
+  for (const auto& s : pca.validate(intrinsics.width, intrinsics.height)) p.push_back("pca: " + s);
+  for (const auto& s : registration.validate()) p.push_back("registration: " + s);
+  if (!(min_model_fraction >= 0.0 && min_model_fraction <= 1.0))
+    p.push_back("min_model_fraction must lie in [0, 1]");
+  if (min_model_cells < 1) p.push_back("min_model_cells must be >= 1");
+  if (min_matches < 1) p.push_back("min_matches must be >= 1");
+  if (!(max_correction_m > 0.0)) p.push_back("max_correction_m must be > 0 m");
+  if (!(max_correction_deg > 0.0)) p.push_back("max_correction_deg must be > 0 deg");
+  if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
+  return p;
+}
+
+LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
+                            const PinholeIntrinsics& intrinsics, const DepthRange& range,
+                            const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config) {
+  const auto problems = config.validate(intrinsics);
+  if (!problems.empty())
+    throw std::invalid_argument("loop closure config: " + joinProblems(problems));
+  if (!T_W_C_pred.matrix().allFinite())
+    throw std::invalid_argument("loop closure: predicted pose T_W_C is not finite");
+  checkFrameSize(current, intrinsics);
+
+  LoopClosureResult r;
+  r.T_W_C = T_W_C_pred;
+  auto t0 = std::chrono::steady_clock::now();
+  const DepthImage virt = map.raycast(intrinsics, T_W_C_pred, range);
+  r.ms_raycast = msSince(t0);
+  r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
+  std::ostringstream why;
+  if (r.model_fraction < config.min_model_fraction) {
+    why << "model too sparse: virtual image has returns on " << 100.0 * r.model_fraction
+        << " % of pixels (< " << 100.0 * config.min_model_fraction << " %)";
+    r.reason = why.str();
+    return r;
+  }
+  t0 = std::chrono::steady_clock::now();
+  PcaConfig pca = config.pca;
+  const CellCloud model = reduceToCells(virt, intrinsics, pca);
+  const CellCloud cur = reduceToCells(current, intrinsics, pca);
+  r.ms_reduce = msSince(t0);
+  r.model_cells = static_cast<int>(model.cells.size());
+  r.current_cells = static_cast<int>(cur.cells.size());
+  if (r.model_cells < config.min_model_cells) {
+    why << "model too sparse: " << r.model_cells << " cells in the virtual image (< "
+        << config.min_model_cells << ")";
+    r.reason = why.str();
+    return r;
+  }
+  t0 = std::chrono::steady_clock::now();
+  RegistrationConfig reg = config.registration;
+  reg.min_matches = std::min(reg.min_matches, config.min_matches);
+  const RegistrationResult res =
+      registerCells(model, cur, intrinsics, Eigen::Isometry3d::Identity(), reg);
+  r.ms_register = msSince(t0);
+  r.matches = res.matches;
+  r.error_rms_m = res.error_rms_m;
+  r.correction_m = res.T_ref_cur.translation().norm();
+  r.correction_deg = rotationAngle(res.T_ref_cur) * 180.0 / M_PI;
+  if (res.matches < config.min_matches) {
+    why << "too few matches: " << res.matches << " cell pairs (< " << config.min_matches << ")";
+  } else if (!res.failure.empty()) {
+    why << "registration failed: " << res.failure;
+  } else if (!res.T_ref_cur.matrix().allFinite()) {
+    why << "registration gave a non-finite correction";
+  } else if (r.correction_m > config.max_correction_m ||
+             r.correction_deg > config.max_correction_deg) {
+    why << "correction too large: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg
+        << " deg (bounds " << 1000.0 * config.max_correction_m << " mm, "
+        << config.max_correction_deg << " deg)";
+  } else if (r.error_rms_m > config.max_error_rms_m) {
+    why << "poor fit: residual RMS " << 1000.0 * r.error_rms_m << " mm (> "
+        << 1000.0 * config.max_error_rms_m << " mm)";
+  }
+  if (!why.str().empty()) {
+    r.reason = why.str();
+    return r;
+  }
+  // T_ref_cur maps the current camera into the virtual camera at the prediction.
+  r.T_W_C = orthonormalized(T_W_C_pred * res.T_ref_cur);
+  r.accepted = true;
+  r.reason = "accepted";
+  return r;
+}
+
+}  // namespace depth_track

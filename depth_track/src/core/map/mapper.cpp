@@ -1,0 +1,87 @@
+#include "depth_track/core/map/mapper.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <stdexcept>
+
+namespace depth_track {
+
+namespace {
+double medianOf(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+}  // namespace
+
+std::vector<std::string> MapperConfig::validate(const PinholeIntrinsics& intrinsics) const {
+  std::vector<std::string> p = intrinsics.validate();
+  for (const auto& s : map.validate()) p.push_back("map: " + s);
+  for (const auto& s : range.validate()) p.push_back("range: " + s);
+  if (loop.enabled)
+    for (const auto& s : loop.validate(intrinsics)) p.push_back("loop closure: " + s);
+  if (flush_every < 0) p.push_back("flush_every must be >= 0 frames");
+  return p;
+}
+
+namespace {
+const MapConfig& checked(const PinholeIntrinsics& k, const MapperConfig& c) {
+  const auto problems = c.validate(k);
+  if (!problems.empty()) throw std::invalid_argument("mapper config: " + joinProblems(problems));
+  return c.map;
+}
+}  // namespace
+
+Mapper::Mapper(const PinholeIntrinsics& intrinsics, const MapperConfig& config,
+               const Eigen::Isometry3d& T_W_C0)
+    : intrinsics_(intrinsics), config_(config), map_(checked(intrinsics, config)) {
+  map_.placeRegion(T_W_C0);
+}
+
+FuseStats Mapper::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
+  const FuseStats st = map_.fuse(depth, intrinsics_, T_W_C);
+  fuse_ms_.push_back(st.ms);
+  if (config_.flush_every > 0 && map_.framesFused() % config_.flush_every == 0) map_.flush();
+  return st;
+}
+
+MapperFrame Mapper::process(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
+  MapperFrame out;
+  out.T_W_C = T_W_C;
+  ++frames_;
+  if (config_.loop.enabled && frames_ % config_.loop.cl_step == 0 && map_.occupiedCount() > 0) {
+    out.loop_attempted = true;
+    out.loop = closeLoop(map_, depth, intrinsics_, config_.range, T_W_C, config_.loop);
+    raycast_ms_.push_back(out.loop.ms_raycast);
+    ++loop_attempts_;
+    if (out.loop.accepted) {
+      ++loop_accepted_;
+      out.T_W_C = out.loop.T_W_C;
+    }
+  }
+  out.fuse = fuse(depth, out.T_W_C);
+  return out;
+}
+
+DepthImage Mapper::raycast(const Eigen::Isometry3d& T_W_C) {
+  const auto t0 = std::chrono::steady_clock::now();
+  DepthImage d = map_.raycast(intrinsics_, T_W_C, config_.range);
+  raycast_ms_.push_back(
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  return d;
+}
+
+void Mapper::save(const std::string& path) { map_.save(path); }
+
+double Mapper::fuseMedianMs() const { return medianOf(fuse_ms_); }
+double Mapper::raycastMedianMs() const { return medianOf(raycast_ms_); }
+
+std::string Mapper::summary() const {
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), "fuse_median_ms=%.2f raycast_median_ms=%.2f loop_closures=%d/%d",
+                fuseMedianMs(), raycastMedianMs(), loop_accepted_, loop_attempts_);
+  return buf;
+}
+
+}  // namespace depth_track
