@@ -28,6 +28,22 @@ void BM_RenderChairRoom(benchmark::State& state) {
 }
 BENCHMARK(BM_RenderChairRoom)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+void BM_RenderChairRoomWithIncidence(benchmark::State& state) {
+  const Scene scene = chairRoomScene();
+  const Eigen::Isometry3d T_W_C = cameraPoseOnTrack(0.0, 0.0, 0.0);
+  const int threads = static_cast<int>(state.range(0));
+  for (auto _ : state) {
+    const RenderedDepth r =
+        renderDepthWithIncidence(scene, l515Intrinsics(), T_W_C, DepthRange{}, threads);
+    benchmark::DoNotOptimize(r.cos_incidence.data());
+  }
+}
+BENCHMARK(BM_RenderChairRoomWithIncidence)
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
 void BM_RenderFurnishedRoom(benchmark::State& state) {
   const RenderedRun run = makeRun("room3");
   const int threads = static_cast<int>(state.range(0));
