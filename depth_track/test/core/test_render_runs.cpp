@@ -63,6 +63,14 @@ TEST(RenderedRuns, XTest1ChairStepsOneMetreTowardsTheChair) {
   EXPECT_GT(fractionValid(last), 0.97);
 }
 
+TEST(RenderedRuns, ChairStillNeverMoves) {
+  const RenderedRun run = makeRun("chair_still");
+  ASSERT_EQ(run.size(), 90u);
+  const RenderedRun xtest = makeRun("xtest1_05_chair");
+  for (const auto& T : run.T_W_C) EXPECT_TRUE(T.isApprox(xtest.T_W_C.front(), kPoseTol));
+  EXPECT_NEAR(run.stamps_s.back(), 89.0 / 30.0, 1e-12);
+}
+
 TEST(RenderedRuns, Rt3PitchSinusoidAndTravel) {
   const RenderedRun run = makeRun("rt3");
   ASSERT_EQ(run.size(), 750u);

@@ -188,7 +188,8 @@ TrackRunSpec rtSpec(const std::string& name, double speed_mmps, double duration_
 }  // namespace
 
 std::vector<std::string> knownRuns() {
-  return {"xtest1_05_chair", "rt1", "rt2", "rt3", "rt4", "rt5", "rt6", "chair3", "room3", "hall1"};
+  return {"xtest1_05_chair", "chair_still", "rt1",  "rt2", "rt3", "rt4", "rt5", "rt6",
+          "chair3",          "room3",       "hall1"};
 }
 
 RenderedRun makeRun(const std::string& name) {
@@ -202,6 +203,15 @@ RenderedRun makeRun(const std::string& name) {
     s.still_frames = 3;
     s.step_m = 0.010;
     s.steps = 100;
+    return makeTrackRun(s, chairRoomScene());
+  }
+  if (name == "chair_still") {
+    // The thesis's stationary check (5.3.1): the same scene seen repeatedly must not drift.
+    TrackRunSpec s;
+    s.name = name;
+    s.description = "ServoTrack at rest at the XTest1_05_Chair start pose for 3 s (90 frames)";
+    s.speed_mps = 0.0;
+    s.duration_s = 3.0;
     return makeTrackRun(s, chairRoomScene());
   }
   if (name == "rt1") return makeTrackRun(rtSpec(name, 95, 12, Axis::kNone, 0, 0), chairRoomScene());
