@@ -157,6 +157,60 @@ std::vector<float> padForFilter(const DepthImage& in, int rx, int ry, double cut
   return p;
 }
 
+// ---- full kernel, each pair of pixels evaluated once -----------------------------------------
+// The bilateral weight of a pixel pair is symmetric (spatial Gaussian of the offset, range
+// Gaussian of the depth difference), so the full kernel visits only half of the offsets (dy > 0,
+// or dy = 0 and dx > 0) and adds each weight to both pixels of the pair: half the exponentials of
+// the direct form. Rows are processed in fixed bands of kBandRows; a band also accumulates into
+// the r rows below it, and the bands' sums are merged in band order, so the result does not
+// depend on the thread count.
+constexpr int kBandRows = 32;
+
+// Pairs of pixels in two different rows: centre row `c` and neighbour row `nb` (already offset
+// by dx). Adds each pair's weight to both rows' accumulators.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+__attribute__((target_clones("arch=x86-64-v3", "default")))
+#endif
+void pairRowsDistinct(const float* __restrict c, const float* __restrict nb, int width, float ws,
+                      float inv_2sd2, float t_cut, float* __restrict num_c,
+                      float* __restrict den_c, float* __restrict num_n, float* __restrict den_n) {
+  for (int x = 0; x < width; ++x) {
+    const float a = c[x], b = nb[x];
+    const float dz = b - a;
+    const float t = dz * dz * inv_2sd2;
+    const float keep = static_cast<float>(t <= t_cut);
+    const float w = ws * expNegApprox(t < t_cut ? t : t_cut) * keep;
+    num_c[x] += w * b;
+    den_c[x] += w;
+    num_n[x] += w * a;
+    den_n[x] += w;
+  }
+}
+
+// Pairs (x, x + dx) within one row: the two ends share one accumulator row, so the weights go
+// through a scratch buffer and each direction is its own (vectorisable) loop.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+__attribute__((target_clones("arch=x86-64-v3", "default")))
+#endif
+void pairRowSame(const float* __restrict c, int width, int dx, float ws, float inv_2sd2,
+                 float t_cut, float* __restrict w_buf, float* __restrict num,
+                 float* __restrict den) {
+  for (int x = 0; x < width; ++x) {
+    const float dz = c[x + dx] - c[x];
+    const float t = dz * dz * inv_2sd2;
+    const float keep = static_cast<float>(t <= t_cut);
+    w_buf[x] = ws * expNegApprox(t < t_cut ? t : t_cut) * keep;
+  }
+  for (int x = 0; x < width; ++x) {
+    num[x] += w_buf[x] * c[x + dx];
+    den[x] += w_buf[x];
+  }
+  for (int x = 0; x < width; ++x) {
+    num[x + dx] += w_buf[x] * c[x];
+    den[x + dx] += w_buf[x];
+  }
+}
+
 template <typename Fn>
 void forRows(int height, int threads, const Fn& fn) {
   if (threads <= 1) {
@@ -199,6 +253,85 @@ DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterCo
   return out;
 }
 
+// The full (2r + 1)^2 kernel by the pair-symmetric scheme above.
+DepthImage bilateralFull(const DepthImage& in, int r, const PrefilterConfig& c, int threads) {
+  const int W = in.width, H = in.height;
+  std::ptrdiff_t ps = 0;
+  const std::vector<float> padded =
+      padForFilter(in, r, r, c.depth_cutoff_sigmas * c.depth_sigma_m, &ps);
+  const int kw = 2 * r + 1;
+  std::vector<float> spatial(static_cast<std::size_t>(kw) * kw);
+  const double inv_2ss2 = 1.0 / (2.0 * c.spatial_sigma_px * c.spatial_sigma_px);
+  for (int dy = -r; dy <= r; ++dy)
+    for (int dx = -r; dx <= r; ++dx)
+      spatial[(dy + r) * kw + dx + r] =
+          static_cast<float>(std::exp(-(dx * dx + dy * dy) * inv_2ss2));
+  const float inv_2sd2 = static_cast<float>(1.0 / (2.0 * c.depth_sigma_m * c.depth_sigma_m));
+  const float t_cut = static_cast<float>(0.5 * c.depth_cutoff_sigmas * c.depth_cutoff_sigmas);
+
+  const int n_bands = (H + kBandRows - 1) / kBandRows;
+  const std::ptrdiff_t as = W + 2 * r;  // accumulator row stride (columns -r .. W + r)
+  std::vector<std::vector<float>> band_num(n_bands), band_den(n_bands);
+  auto run_band = [&](int b) {
+    const int y0 = b * kBandRows, y1 = std::min(H, y0 + kBandRows);
+    std::vector<float>& num = band_num[b];
+    std::vector<float>& den = band_den[b];
+    num.assign(static_cast<std::size_t>(y1 - y0 + r) * as, 0.0f);
+    den.assign(num.size(), 0.0f);
+    std::vector<float> w_buf(W);
+    for (int y = y0; y < y1; ++y) {
+      const float* crow = padded.data() + (y + r) * ps + r;
+      float* num_c = num.data() + (y - y0) * as + r;
+      float* den_c = den.data() + (y - y0) * as + r;
+      for (int dx = 1; dx <= r; ++dx)
+        pairRowSame(crow, W, dx, spatial[r * kw + dx + r], inv_2sd2, t_cut, w_buf.data(), num_c,
+                    den_c);
+      for (int dy = 1; dy <= r; ++dy)
+        for (int dx = -r; dx <= r; ++dx)
+          pairRowsDistinct(crow, padded.data() + (y + r + dy) * ps + r + dx, W,
+                           spatial[(dy + r) * kw + dx + r], inv_2sd2, t_cut, num_c, den_c,
+                           num.data() + (y - y0 + dy) * as + r + dx,
+                           den.data() + (y - y0 + dy) * as + r + dx);
+    }
+  };
+  if (threads <= 1) {
+    for (int b = 0; b < n_bands; ++b) run_band(b);
+  } else {
+    tbb::task_arena arena(threads);
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<int>(0, n_bands, 1),
+                        [&](const tbb::blocked_range<int>& br) {
+                          for (int b = br.begin(); b < br.end(); ++b) run_band(b);
+                        });
+    });
+  }
+
+  // Merge in band order; columns outside the image and rows below it only ever received weight
+  // 0 (their partners are the far stand-in) and are dropped.
+  std::vector<float> num(static_cast<std::size_t>(W) * H, 0.0f), den(num.size(), 0.0f);
+  for (int b = 0; b < n_bands; ++b) {
+    const int y0 = b * kBandRows;
+    const int rows = std::min(H, y0 + kBandRows) - y0 + r;
+    for (int ay = 0; ay < rows && y0 + ay < H; ++ay) {
+      const float* bn = band_num[b].data() + ay * as + r;
+      const float* bd = band_den[b].data() + ay * as + r;
+      float* gn = num.data() + static_cast<std::size_t>(y0 + ay) * W;
+      float* gd = den.data() + static_cast<std::size_t>(y0 + ay) * W;
+      for (int x = 0; x < W; ++x) {
+        gn[x] += bn[x];
+        gd[x] += bd[x];
+      }
+    }
+  }
+  // Add the centre tap (weight 1) last; invalid centres stay invalid.
+  DepthImage out(W, H);
+  for (std::size_t i = 0; i < out.data.size(); ++i) {
+    const float z = in.data[i];
+    out.data[i] = z > 0.0f ? (num[i] + z) / (den[i] + 1.0f) : 0.0f;
+  }
+  return out;
+}
+
 }  // namespace
 
 DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config, int threads) {
@@ -222,7 +355,7 @@ DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config
       if (depth.empty()) return depth;
       const int r = config.kernel_size_px / 2;
       if (config.bilateral_mode == BilateralMode::kFull)
-        return bilateralPass(depth, r, r, config, threads);
+        return bilateralFull(depth, r, config, threads);
       return bilateralPass(bilateralPass(depth, r, 0, config, threads), 0, r, config, threads);
     }
   }
