@@ -12,6 +12,7 @@
 #include <mutex>
 
 #include "rig_drivers/protocol/step_script.hpp"
+#include "rig_msgs/Command.h"
 #include "rig_msgs/SequenceStep.h"
 #include "rig_msgs/SetMode.h"
 #include "rig_msgs/TrackState.h"
@@ -30,6 +31,8 @@ class Sequencer {
     pnh.param<std::string>("script", script_path_, "");
     pnh.param<std::string>("track_step_service", track_step_, "track_host/step");
     pnh.param<std::string>("track_mode_service", track_mode_, "track_host/mode");
+    pnh.param<std::string>("track_command_service", track_command_, "track_host/command");
+    pnh.param("init_first", init_first_, false);
     pnh.param<std::string>("car_step_service", car_step_, "");
     pnh.param<std::string>("car_mode_service", car_mode_, "");
     pnh.param<std::string>("camera_trigger_service", camera_trigger_, "depth_camera/trigger");
@@ -87,6 +90,7 @@ class Sequencer {
     std::vector<std::string> needed{camera_trigger_};
     if (!track_step_.empty()) needed.push_back(track_step_);
     if (!track_mode_.empty()) needed.push_back(track_mode_);
+    if (init_first_) needed.push_back(track_command_);
     if (!car_step_.empty()) needed.push_back(car_step_);
     if (!car_mode_.empty()) needed.push_back(car_mode_);
     for (const auto& s : needed)
@@ -95,6 +99,14 @@ class Sequencer {
              " s; nothing was moved");
         return 1;
       }
+    if (init_first_) {  // home the carriage (TrackDRV refuses moves until initialised)
+      rig_msgs::Command init;
+      init.request.command = rig_msgs::Command::Request::INIT;
+      if (!ros::service::call(track_command_, init) || !init.response.success) {
+        fail("init through " + track_command_ + " failed: " + init.response.message);
+        return 1;
+      }
+    }
     for (const auto& m : {track_mode_, car_mode_}) {
       if (m.empty()) continue;
       rig_msgs::SetMode mode;
@@ -222,6 +234,8 @@ class Sequencer {
     return false;
   }
 
+  bool init_first_ = false;
+  std::string track_command_;
   std::string script_path_, track_step_, track_mode_, car_step_, car_mode_, camera_trigger_,
       track_state_topic_;
   int still_frames_ = 3;
