@@ -488,6 +488,7 @@ void StreamDecoder::flush(FrameSink& sink) {
   sink.onError(DecodeError::kTruncated, n);
 }
 
+#if !defined(ARDUINO)
 // ---- host conveniences
 // ---------------------------------------------------------------------------------
 
@@ -530,6 +531,8 @@ std::vector<uint8_t> frameBytes(const Frame& f) {
   out.resize(encodeFrame(f.board, f.id, f.seq, f.payload, f.length, out.data(), out.size()));
   return out;
 }
+
+#endif  // !ARDUINO
 
 }  // namespace protocol
 }  // namespace rig_drivers

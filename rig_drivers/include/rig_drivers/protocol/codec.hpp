@@ -20,12 +20,15 @@
 // the board's own frame counter in seq, so the host can count lost frames.
 //
 // The header uses only <cstdint>/<cstddef>/<cstring> in the firmware part so the same code runs in
-// the Arduino sketches; the host conveniences (std::vector) are at the end.
+// the Arduino sketches; the host conveniences (std::vector) at the end are left out when ARDUINO
+// is defined.
 
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#if !defined(ARDUINO)
 #include <vector>
+#endif
 
 namespace rig_drivers {
 namespace protocol {
@@ -398,6 +401,7 @@ class StreamDecoder {
   Frame frame_;
 };
 
+#if !defined(ARDUINO)
 // ---- host conveniences (heap)
 // -----------------------------------------------------------------------
 
@@ -425,6 +429,8 @@ std::vector<uint8_t> encodeCommand(BoardId board, MsgId id, uint32_t seq);
 
 /// The frame re-encoded exactly as it was on the wire (for rig_msgs/RawFrame recording).
 std::vector<uint8_t> frameBytes(const Frame& f);
+
+#endif  // !ARDUINO
 
 }  // namespace protocol
 }  // namespace rig_drivers
