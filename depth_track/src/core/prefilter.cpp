@@ -95,49 +95,6 @@ inline float expNegApprox(float t) {
   return e;
 }
 
-// One output row of a bilateral filter with a (2 ry + 1) x (2 rx + 1) kernel. `padded` points at
-// the first pixel of the padded row that holds image row y (far-depth border of ry rows / rx
-// columns on each side, row stride `pstride`); `centre` is image row y. The loop runs along the row
-// so that it vectorises without reassociating any sum: each x owns its own accumulators.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-__attribute__((target_clones("arch=x86-64-v3", "default")))
-#endif
-void bilateralRow(const float* __restrict padded, std::ptrdiff_t pstride,
-                  const float* __restrict centre, int width, int rx, int ry,
-                  const float* __restrict spatial_w, float inv_2sd2, float t_cut,
-                  float* __restrict num, float* __restrict den, float* __restrict out) {
-  for (int x = 0; x < width; ++x) {
-    num[x] = 0.0f;
-    den[x] = 0.0f;
-  }
-  const int kw = 2 * rx + 1;
-  for (int dy = -ry; dy <= ry; ++dy) {
-    const float* prow = padded + dy * pstride + rx;
-    for (int dx = -rx; dx <= rx; ++dx) {
-      const float ws = spatial_w[(dy + ry) * kw + (dx + rx)];
-      const float* __restrict nb = prow + dx;
-      for (int x = 0; x < width; ++x) {
-        const float d = nb[x];
-        const float dz = d - centre[x];
-        const float t = dz * dz * inv_2sd2;
-        // Branch-free so the loop vectorises: missing pixels hold a far depth (padForFilter), so
-        // one comparison drops them together with depths beyond the cutoff; t is clamped into
-        // the approximation's range first.
-        const float keep = static_cast<float>(t <= t_cut);
-        const float w = ws * expNegApprox(t < t_cut ? t : t_cut) * keep;
-        num[x] += w * d;
-        den[x] += w;
-      }
-    }
-  }
-  // The centre tap always has weight 1 for a valid pixel, so den > 0 there; invalid centres
-  // stay invalid (never filled from neighbours).
-  for (int x = 0; x < width; ++x) {
-    const float safe_den = den[x] > 0.0f ? den[x] : 1.0f;
-    out[x] = centre[x] > 0.0f ? num[x] / safe_den : 0.0f;
-  }
-}
-
 // Copies a frame into a buffer with a border of rx columns / ry rows. Missing pixels and the
 // border hold a stand-in depth further from every real depth of the frame than the range cutoff
 // (cutoff_m), so its range weight is cut off and the tap loop needs no separate validity test;
@@ -157,13 +114,14 @@ std::vector<float> padForFilter(const DepthImage& in, int rx, int ry, double cut
   return p;
 }
 
-// ---- full kernel, each pair of pixels evaluated once -----------------------------------------
+// ---- each pair of pixels evaluated once ---------------------------------------------------------
 // The bilateral weight of a pixel pair is symmetric (spatial Gaussian of the offset, range
-// Gaussian of the depth difference), so the full kernel visits only half of the offsets (dy > 0,
+// Gaussian of the depth difference), so a pass visits only half of the kernel's offsets (dy > 0,
 // or dy = 0 and dx > 0) and adds each weight to both pixels of the pair: half the exponentials of
-// the direct form. Rows are processed in fixed bands of kBandRows; a band also accumulates into
-// the r rows below it, and the bands' sums are merged in band order, so the result does not
-// depend on the thread count.
+// the direct form. Each loop runs along a row, so it vectorises without reassociating any sum.
+// Rows are processed in fixed bands of kBandRows; a band also accumulates into the ry rows below
+// it, and the bands' sums are merged in band order, so the result does not depend on the thread
+// count.
 constexpr int kBandRows = 32;
 
 // Pairs of pixels in two different rows: centre row `c` and neighbour row `nb` (already offset
@@ -211,25 +169,14 @@ void pairRowSame(const float* __restrict c, int width, int dx, float ws, float i
   }
 }
 
-template <typename Fn>
-void forRows(int height, int threads, const Fn& fn) {
-  if (threads <= 1) {
-    fn(0, height);
-    return;
-  }
-  tbb::task_arena arena(threads);
-  arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, height, 8),
-                      [&](const tbb::blocked_range<int>& r) { fn(r.begin(), r.end()); });
-  });
-}
-
-// One bilateral pass with a (2 ry + 1) x (2 rx + 1) kernel.
+// A bilateral pass with a (2 ry + 1) x (2 rx + 1) kernel by the pair-symmetric scheme above:
+// the full kernel (rx = ry = r) or one 1-D pass of the separable form (ry = 0 or rx = 0).
 DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterConfig& c,
                          int threads) {
-  std::ptrdiff_t pstride = 0;
+  const int W = in.width, H = in.height;
+  std::ptrdiff_t ps = 0;
   const std::vector<float> padded =
-      padForFilter(in, rx, ry, c.depth_cutoff_sigmas * c.depth_sigma_m, &pstride);
+      padForFilter(in, rx, ry, c.depth_cutoff_sigmas * c.depth_sigma_m, &ps);
   const int kw = 2 * rx + 1, kh = 2 * ry + 1;
   std::vector<float> spatial(static_cast<std::size_t>(kw) * kh);
   const double inv_2ss2 = 1.0 / (2.0 * c.spatial_sigma_px * c.spatial_sigma_px);
@@ -240,58 +187,29 @@ DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterCo
   const float inv_2sd2 = static_cast<float>(1.0 / (2.0 * c.depth_sigma_m * c.depth_sigma_m));
   const float t_cut = static_cast<float>(0.5 * c.depth_cutoff_sigmas * c.depth_cutoff_sigmas);
 
-  DepthImage out(in.width, in.height);
-  forRows(in.height, threads, [&](int v0, int v1) {
-    std::vector<float> num(in.width), den(in.width);
-    for (int v = v0; v < v1; ++v) {
-      bilateralRow(padded.data() + (v + ry) * pstride, pstride,
-                   in.data.data() + static_cast<std::size_t>(v) * in.width, in.width, rx, ry,
-                   spatial.data(), inv_2sd2, t_cut, num.data(), den.data(),
-                   out.data.data() + static_cast<std::size_t>(v) * in.width);
-    }
-  });
-  return out;
-}
-
-// The full (2r + 1)^2 kernel by the pair-symmetric scheme above.
-DepthImage bilateralFull(const DepthImage& in, int r, const PrefilterConfig& c, int threads) {
-  const int W = in.width, H = in.height;
-  std::ptrdiff_t ps = 0;
-  const std::vector<float> padded =
-      padForFilter(in, r, r, c.depth_cutoff_sigmas * c.depth_sigma_m, &ps);
-  const int kw = 2 * r + 1;
-  std::vector<float> spatial(static_cast<std::size_t>(kw) * kw);
-  const double inv_2ss2 = 1.0 / (2.0 * c.spatial_sigma_px * c.spatial_sigma_px);
-  for (int dy = -r; dy <= r; ++dy)
-    for (int dx = -r; dx <= r; ++dx)
-      spatial[(dy + r) * kw + dx + r] =
-          static_cast<float>(std::exp(-(dx * dx + dy * dy) * inv_2ss2));
-  const float inv_2sd2 = static_cast<float>(1.0 / (2.0 * c.depth_sigma_m * c.depth_sigma_m));
-  const float t_cut = static_cast<float>(0.5 * c.depth_cutoff_sigmas * c.depth_cutoff_sigmas);
-
   const int n_bands = (H + kBandRows - 1) / kBandRows;
-  const std::ptrdiff_t as = W + 2 * r;  // accumulator row stride (columns -r .. W + r)
+  const std::ptrdiff_t as = W + 2 * rx;  // accumulator row stride (columns -rx .. W + rx)
   std::vector<std::vector<float>> band_num(n_bands), band_den(n_bands);
   auto run_band = [&](int b) {
     const int y0 = b * kBandRows, y1 = std::min(H, y0 + kBandRows);
     std::vector<float>& num = band_num[b];
     std::vector<float>& den = band_den[b];
-    num.assign(static_cast<std::size_t>(y1 - y0 + r) * as, 0.0f);
+    num.assign(static_cast<std::size_t>(y1 - y0 + ry) * as, 0.0f);
     den.assign(num.size(), 0.0f);
     std::vector<float> w_buf(W);
     for (int y = y0; y < y1; ++y) {
-      const float* crow = padded.data() + (y + r) * ps + r;
-      float* num_c = num.data() + (y - y0) * as + r;
-      float* den_c = den.data() + (y - y0) * as + r;
-      for (int dx = 1; dx <= r; ++dx)
-        pairRowSame(crow, W, dx, spatial[r * kw + dx + r], inv_2sd2, t_cut, w_buf.data(), num_c,
+      const float* crow = padded.data() + (y + ry) * ps + rx;
+      float* num_c = num.data() + (y - y0) * as + rx;
+      float* den_c = den.data() + (y - y0) * as + rx;
+      for (int dx = 1; dx <= rx; ++dx)
+        pairRowSame(crow, W, dx, spatial[ry * kw + dx + rx], inv_2sd2, t_cut, w_buf.data(), num_c,
                     den_c);
-      for (int dy = 1; dy <= r; ++dy)
-        for (int dx = -r; dx <= r; ++dx)
-          pairRowsDistinct(crow, padded.data() + (y + r + dy) * ps + r + dx, W,
-                           spatial[(dy + r) * kw + dx + r], inv_2sd2, t_cut, num_c, den_c,
-                           num.data() + (y - y0 + dy) * as + r + dx,
-                           den.data() + (y - y0 + dy) * as + r + dx);
+      for (int dy = 1; dy <= ry; ++dy)
+        for (int dx = -rx; dx <= rx; ++dx)
+          pairRowsDistinct(crow, padded.data() + (y + ry + dy) * ps + rx + dx, W,
+                           spatial[(dy + ry) * kw + dx + rx], inv_2sd2, t_cut, num_c, den_c,
+                           num.data() + (y - y0 + dy) * as + rx + dx,
+                           den.data() + (y - y0 + dy) * as + rx + dx);
     }
   };
   if (threads <= 1) {
@@ -311,10 +229,10 @@ DepthImage bilateralFull(const DepthImage& in, int r, const PrefilterConfig& c, 
   std::vector<float> num(static_cast<std::size_t>(W) * H, 0.0f), den(num.size(), 0.0f);
   for (int b = 0; b < n_bands; ++b) {
     const int y0 = b * kBandRows;
-    const int rows = std::min(H, y0 + kBandRows) - y0 + r;
+    const int rows = std::min(H, y0 + kBandRows) - y0 + ry;
     for (int ay = 0; ay < rows && y0 + ay < H; ++ay) {
-      const float* bn = band_num[b].data() + ay * as + r;
-      const float* bd = band_den[b].data() + ay * as + r;
+      const float* bn = band_num[b].data() + ay * as + rx;
+      const float* bd = band_den[b].data() + ay * as + rx;
       float* gn = num.data() + static_cast<std::size_t>(y0 + ay) * W;
       float* gd = den.data() + static_cast<std::size_t>(y0 + ay) * W;
       for (int x = 0; x < W; ++x) {
@@ -355,7 +273,7 @@ DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config
       if (depth.empty()) return depth;
       const int r = config.kernel_size_px / 2;
       if (config.bilateral_mode == BilateralMode::kFull)
-        return bilateralFull(depth, r, config, threads);
+        return bilateralPass(depth, r, r, config, threads);
       return bilateralPass(bilateralPass(depth, r, 0, config, threads), 0, r, config, threads);
     }
   }
