@@ -253,7 +253,12 @@ int run(int argc, char** argv) {
     Eigen::Isometry3d T_L_O = Eigen::Isometry3d::Identity();
     T_L_O.linear() = depth_track::rotationBodyFromOptical();
     st.transforms.push_back(tfMsg(kEpoch, "camera_link", kOpticalFrame, T_L_O));
+    // A custom connection header replaces rosbag's own: give it the message's type fields too.
+    using Traits = ros::message_traits::DataType<tf2_msgs::TFMessage>;
     auto hdr = boost::make_shared<ros::M_string>();
+    (*hdr)["type"] = Traits::value();
+    (*hdr)["md5sum"] = ros::message_traits::MD5Sum<tf2_msgs::TFMessage>::value();
+    (*hdr)["message_definition"] = ros::message_traits::Definition<tf2_msgs::TFMessage>::value();
     (*hdr)["latching"] = "1";
     (*hdr)["callerid"] = "/make_scenario_bag";
     bag.write("/tf_static", kEpoch, st, hdr);

@@ -440,8 +440,10 @@ void RigSimulator::Impl::onAck(const protocol::Ack& ack) {
     waiting.erase(ack.acked_seq);
     return;
   }
-  // A streamed servo demand superseded by the next one (see sendServoDemand).
-  if (ack.status == AckStatus::kAborted && ack.acked_id == MsgId::kServo) return;
+  // A streamed servo demand superseded by the next one (see sendServoDemand), or the run's move
+  // ended by the stop after the last frame.
+  if (ack.status == AckStatus::kAborted && (ack.acked_id == MsgId::kServo || phase == Phase::kDone))
+    return;
   events.push_back(
       std::string("t=") + std::to_string(t) + " s: " + protocol::msgName(ack.acked_id) + " (seq " +
       std::to_string(ack.acked_seq) + ") answered " + protocol::ackStatusName(ack.status));

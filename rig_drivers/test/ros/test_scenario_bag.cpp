@@ -122,6 +122,23 @@ TEST(ScenarioBag, ServoTrackRunHasEveryTopicAtItsRate) {
   EXPECT_NEAR((img.last - img.first).toSec(), (kFrames - 1) / 30.0, 1e-3);
 }
 
+TEST(ScenarioBag, EveryConnectionCarriesItsTypeForOtherReaders) {
+  // rosbag's Python reader (rosbag info/play) needs type, md5sum and definition on every
+  // connection, including the latched /tf_static written with a custom connection header.
+  rosbag::Bag bag(makeBag("RT1", tmpDir()), rosbag::bagmode::Read);
+  rosbag::View view(bag);
+  int latched = 0;
+  for (const rosbag::ConnectionInfo* c : view.getConnections()) {
+    ASSERT_TRUE(c->header);
+    for (const char* field : {"type", "md5sum", "message_definition"}) {
+      EXPECT_TRUE(c->header->count(field)) << c->topic << " lacks " << field;
+    }
+    EXPECT_EQ(c->header->at("md5sum"), c->md5sum) << c->topic;
+    if (c->header->count("latching") && c->header->at("latching") == "1") ++latched;
+  }
+  EXPECT_EQ(latched, 1);  // /tf_static only
+}
+
 TEST(ScenarioBag, ImagesAreL515DepthOfTheChairRoom) {
   const std::string dir = tmpDir();
   rosbag::Bag bag(makeBag("RT1", dir), rosbag::bagmode::Read);
