@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -95,6 +96,10 @@ inline float expNegApprox(float t) {
   return e;
 }
 
+// A usable depth: positive and finite (frames from depthFromRaw hold 0 for anything else, but a
+// hand-made frame may carry NaN or Inf; they count as "no return" here too).
+inline bool isDepth(float d) { return d > 0.0f && d < std::numeric_limits<float>::infinity(); }
+
 // Copies a frame into a buffer with a border of rx columns / ry rows. Missing pixels and the
 // border hold a stand-in depth further from every real depth of the frame than the range cutoff
 // (cutoff_m), so its range weight is cut off and the tap loop needs no separate validity test;
@@ -102,14 +107,15 @@ inline float expNegApprox(float t) {
 std::vector<float> padForFilter(const DepthImage& in, int rx, int ry, double cutoff_m,
                                 std::ptrdiff_t* stride) {
   float max_depth = 0.0f;
-  for (float d : in.data) max_depth = std::max(max_depth, d);
+  for (float d : in.data)
+    if (std::isfinite(d)) max_depth = std::max(max_depth, d);
   const float far = static_cast<float>(2.0 * max_depth + 4.0 * cutoff_m + 1.0e4);
   *stride = in.width + 2 * rx;
   std::vector<float> p(static_cast<std::size_t>(*stride) * (in.height + 2 * ry), far);
   for (int v = 0; v < in.height; ++v) {
     const float* src = in.data.data() + static_cast<std::size_t>(v) * in.width;
     float* dst = p.data() + static_cast<std::size_t>(v + ry) * *stride + rx;
-    for (int u = 0; u < in.width; ++u) dst[u] = src[u] > 0.0f ? src[u] : far;
+    for (int u = 0; u < in.width; ++u) dst[u] = isDepth(src[u]) ? src[u] : far;
   }
   return p;
 }
@@ -245,7 +251,7 @@ DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterCo
   DepthImage out(W, H);
   for (std::size_t i = 0; i < out.data.size(); ++i) {
     const float z = in.data[i];
-    out.data[i] = z > 0.0f ? (num[i] + z) / (den[i] + 1.0f) : 0.0f;
+    out.data[i] = isDepth(z) ? (num[i] + z) / (den[i] + 1.0f) : 0.0f;
   }
   return out;
 }

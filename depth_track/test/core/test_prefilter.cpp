@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -241,6 +242,27 @@ TEST(Prefilter, HolesAreNeitherUsedNorFilled) {
   for (int v = 20; v < 40; ++v) {
     EXPECT_NEAR(f.at(29, v), 1.2, 0.005);
     EXPECT_NEAR(f.at(50, v), 1.2, 0.005);
+  }
+}
+
+TEST(Prefilter, NanAndInfCountAsHoles) {
+  DepthImage d(12, 10, 1.0f);
+  d.at(3, 3) = std::numeric_limits<float>::quiet_NaN();
+  d.at(7, 5) = std::numeric_limits<float>::infinity();
+  d.at(8, 5) = -2.0f;
+  for (const BilateralMode mode : {BilateralMode::kFull, BilateralMode::kSeparable}) {
+    PrefilterConfig c = bilateral(7, 2.0, 0.05);
+    c.bilateral_mode = mode;
+    const DepthImage f = applyPrefilter(d, c);
+    EXPECT_EQ(f.at(3, 3), 0.0f);
+    EXPECT_EQ(f.at(7, 5), 0.0f);
+    EXPECT_EQ(f.at(8, 5), 0.0f);
+    for (int v = 0; v < 10; ++v)
+      for (int u = 0; u < 12; ++u)
+        if (f.at(u, v) != 0.0f) {
+          EXPECT_NEAR(f.at(u, v), 1.0f, 1e-6f) << u << "," << v;
+        }
+    EXPECT_EQ(f.countValid(), 117u);
   }
 }
 
