@@ -47,6 +47,7 @@ int main(int argc, char** argv) {
   std::uint64_t seed = 1;
   int threads = 0;
   int max_frames = -1;
+  double depth_bias = 0.0;
   std::string known;
   for (const auto& k : sim::knownRuns()) known += (known.empty() ? "" : ", ") + k;
   app.add_option("--run", run_name, "run name: " + known)->required();
@@ -58,11 +59,15 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-frames", max_frames, "render only the first N frames (-1 = all)")
       ->capture_default_str();
+  app.add_option("--depth-bias", depth_bias,
+                 "systematic depth scale error (0.0063 = the thesis's L515, table 4.2)")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   try {
     const sim::RenderedRun run = sim::makeRun(run_name);
-    const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name));
+    sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name));
+    noise.depth_scale_bias = depth_bias;
     if (threads < 0) throw std::invalid_argument("--threads must be >= 0");
     namespace fs = std::filesystem;
     fs::create_directories(fs::path(out_dir) / "depth");

@@ -252,3 +252,13 @@ TEST(RenderNoise, GrazingDropoutsFollowTheIncidenceRamp) {
   const std::vector<float> short_incidence(10, 1.0f);
   EXPECT_THROW(applyNoise(r.depth, c, 5, range, &short_incidence), DepthInputError);
 }
+
+TEST(RenderNoise, DepthScaleBiasIsMultiplicative) {
+  const DepthImage clean = flatWall(2.0);
+  NoiseConfig c;  // bias only
+  c.depth_scale_bias = 0.0063;
+  const DepthImage biased = applyNoise(clean, c, 1, DepthRange{});
+  for (float z : biased.data) ASSERT_NEAR(z, 2.0 * 1.0063, 1e-6);
+  c.depth_scale_bias = 0.5;
+  EXPECT_THROW(applyNoise(clean, c, 1, DepthRange{}), std::invalid_argument);
+}

@@ -154,6 +154,8 @@ std::vector<std::string> NoiseConfig::validate() const {
   prob(speckle_prob, "speckle_prob");
   prob(random_dropout_prob, "random_dropout_prob");
   prob(grazing_dropout_prob, "grazing_dropout_prob");
+  if (!(std::isfinite(depth_scale_bias) && std::abs(depth_scale_bias) <= 0.2))
+    p.push_back("depth_scale_bias must be within +-0.2");
   if (!(std::isfinite(grazing_cos) && grazing_cos >= 0.0 && grazing_cos < 1.0))
     p.push_back("grazing_cos must be in [0, 1)");
   if (max_jitter_px < 0 || max_jitter_px > 16) p.push_back("max_jitter_px must be in [0, 16]");
@@ -222,7 +224,8 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
   }
   if (c.model == NoiseModel::kNone && c.sigmaAt(1.0) == 0.0 && c.lateral_fwhm_px == 0.0 &&
       c.edge_dropout_prob == 0.0 && c.edge_bleed_prob == 0.0 && c.speckle_prob == 0.0 &&
-      c.random_dropout_prob == 0.0 && c.grazing_dropout_prob == 0.0 && c.quantum_m == 0.0) {
+      c.random_dropout_prob == 0.0 && c.grazing_dropout_prob == 0.0 && c.quantum_m == 0.0 &&
+      c.depth_scale_bias == 0.0) {
     DepthImage out = clean;
     for (float& z : out.data)
       if (!(z >= range.min_m && z <= range.max_m)) z = 0.0f;
@@ -294,6 +297,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
             z = 0.0;
         }
 
+        z *= 1.0 + c.depth_scale_bias;
         if (z > 0.0) {
           const double sigma = c.sigmaAt(z);
           if (sigma > 0.0) z += sigma * gaussian(seed, i, kGauss1, kGauss2);
