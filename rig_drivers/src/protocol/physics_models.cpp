@@ -215,6 +215,8 @@ std::string LinkConfig::validate() const {
   requireNonNegative(e, "spike_extra_s", spike_extra_s);
   requirePositive(e, "baud", baud);
   requireProbability(e, "drop_prob", drop_prob);
+  if (!(bit_error_rate >= 0 && bit_error_rate < 0.5))
+    e << "bit_error_rate must be in [0, 0.5), got " << bit_error_rate << "; ";
   return trimmed(e);
 }
 
@@ -253,7 +255,16 @@ double LinkModel::send(double t, const uint8_t* data, size_t n) {
   const double wire = static_cast<double>(n) * 10.0 / config_.baud;
   const double arrival = std::max(t + delay + wire, last_arrival_ + wire);
   last_arrival_ = arrival;
-  queue_.push_back(Chunk{arrival, std::vector<uint8_t>(data, data + n)});
+  std::vector<uint8_t> bytes(data, data + n);
+  if (config_.bit_error_rate > 0) {
+    // Draws only when enabled, so a clean link keeps the random sequence it always had.
+    const double p_byte = 1.0 - std::pow(1.0 - config_.bit_error_rate, 8);
+    for (auto& b : bytes) {
+      if (rng_.uniform() < p_byte)
+        b ^= static_cast<uint8_t>(1u << static_cast<int>(rng_.uniform() * 8));
+    }
+  }
+  queue_.push_back(Chunk{arrival, std::move(bytes)});
   return arrival;
 }
 

@@ -4,6 +4,7 @@
 #include <numeric>
 #include <vector>
 
+#include "rig_drivers/protocol/codec.hpp"
 #include "rig_drivers/protocol/physics_models.hpp"
 
 namespace rp = rig_drivers::protocol;
@@ -278,4 +279,39 @@ TEST(LinkModel, RejectsBadConfig) {
   EXPECT_NE(e.find("baud"), std::string::npos);
   EXPECT_NE(e.find("drop_prob"), std::string::npos);
   EXPECT_THROW(rp::LinkModel(c, 1), std::invalid_argument);
+}
+
+TEST(LinkModel, BitErrorsCostTheExpectedFramesAndNeverForgeOne) {
+  // 33-byte CarSensors frames over a line with bit error rate 1e-4: a frame survives with
+  // probability (1 - 1e-4)^264 = 0.974 (a byte with two flipped bits is counted once, the model
+  // flips one bit per corrupted byte: survival (1 - p_byte)^33 with p_byte = 1 - (1 - ber)^8).
+  auto c = rp::LinkConfig::usbSerial();
+  c.bit_error_rate = 1e-4;
+  rp::LinkModel link(c, 21);
+  const int n = 5000;
+  std::vector<std::vector<uint8_t>> sent;
+  double t = 0;
+  for (int i = 0; i < n; ++i) {
+    rp::CarSensorsPayload s;
+    s.board_time_ms = static_cast<uint32_t>(i * 33);
+    s.pitch_cdeg = static_cast<int16_t>(i);
+    s.tof_mm = static_cast<uint16_t>(i * 3);
+    sent.push_back(rp::encodeMessage(rp::BoardId::kCar, static_cast<uint32_t>(i), s));
+    t = i / 30.0;
+    link.send(t, sent.back());
+  }
+  const auto bytes = link.receive(t + 1.0);
+  ASSERT_EQ(bytes.size(), static_cast<size_t>(n) * 33);
+  rp::StreamDecoder dec;
+  int good = 0;
+  for (const auto& e : rp::feed(dec, bytes)) {
+    if (e.error != rp::DecodeError::kNone) continue;
+    ++good;
+    ASSERT_LT(e.frame.seq, static_cast<uint32_t>(n));
+    EXPECT_EQ(rp::frameBytes(e.frame), sent[e.frame.seq]);  // never a corrupted frame passed
+  }
+  const double p = std::pow(1.0 - (1.0 - std::pow(1.0 - 1e-4, 8)), 33);
+  const double sd = std::sqrt(n * p * (1 - p));
+  EXPECT_NEAR(good, n * p, 5 * sd);
+  EXPECT_LT(good, n);  // the line did corrupt some
 }

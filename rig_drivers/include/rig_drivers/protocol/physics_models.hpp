@@ -165,6 +165,7 @@ struct LinkConfig {
   double spike_extra_s = 0.004;   ///< spike adds uniform [0, spike_extra] (s)
   double baud = 115200;           ///< line rate (bit/s), 10 bits per byte (8N1)
   double drop_prob = 0.0;         ///< probability a chunk is lost (1)
+  double bit_error_rate = 0.0;    ///< probability each bit arrives flipped (1); 0 = clean line
   std::string validate() const;
   /// USB serial to an Arduino: one-way 2-4 ms with rare spikes to ~8 ms (thesis fig. A4).
   static LinkConfig usbSerial();
