@@ -50,86 +50,79 @@ namespace {
 
 enum class CellOutcome { kKept, kInvalid, kDegenerate, kEdge };
 
-// True when two 4-neighbouring valid pixels of the cell differ by more than the edge threshold.
-bool spansEdge(const DepthImage& depth, int u0, int v0, int n, const PcaConfig& config) {
+// Reduces one grid cell in a single pass over its pixels: sums of vertices taken relative to
+// the first valid vertex (so the covariance does not cancel metre-sized offsets), and the
+// occluding-edge test against the left and upper neighbours. u_ray/v_ray hold (u - cx)/fx per
+// column and (v - cy)/fy per row.
+CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float* v_ray, int gx,
+                       int gy, const PcaConfig& config, int min_valid, Cell* cell) {
+  const int n = config.cell_size;
+  const int u0 = gx * n, v0 = gy * n;
+  const bool edge_test = config.edge_jump_rel > 0.0;
   const float rel = static_cast<float>(config.edge_jump_rel);
   const float floor_m = static_cast<float>(config.edge_jump_min_m);
   auto jump = [&](float a, float b) {
     return a > 0.0f && b > 0.0f && std::abs(a - b) > std::max(floor_m, rel * std::min(a, b));
   };
-  for (int v = v0; v < v0 + n; ++v) {
-    const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
-    const float* below = row + depth.width;
-    for (int u = u0; u < u0 + n; ++u) {
-      if (u + 1 < u0 + n && jump(row[u], row[u + 1])) return true;
-      if (v + 1 < v0 + n && jump(row[u], below[u])) return true;
-    }
-  }
-  return false;
-}
-
-// Reduces one grid cell; u_ray/v_ray hold (u - cx)/fx per column and (v - cy)/fy per row.
-CellOutcome reduceCell(const DepthImage& depth, const std::vector<float>& u_ray,
-                       const std::vector<float>& v_ray, int gx, int gy, const PcaConfig& config,
-                       int min_valid, Cell* cell) {
-  const int n = config.cell_size;
-  const int u0 = gx * n, v0 = gy * n;
-  // Up to 32x32 vertices on the stack.
-  float xs[32 * 32], ys[32 * 32], zs[32 * 32];
-  int count = 0;
-  double sx = 0, sy = 0, sz = 0;
+  const int max_missing = n * n - min_valid;
+  int count = 0, missing = 0;
+  double ox = 0, oy = 0, oz = 0;  // origin: the first valid vertex
+  double sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
   for (int v = v0; v < v0 + n; ++v) {
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
     const float vr = v_ray[v];
     for (int u = u0; u < u0 + n; ++u) {
       const float z = row[u];
-      if (!(z > 0.0f)) continue;
-      xs[count] = u_ray[u] * z;
-      ys[count] = vr * z;
-      zs[count] = z;
-      sx += xs[count];
-      sy += ys[count];
-      sz += z;
+      if (!(z > 0.0f)) {
+        if (++missing > max_missing) return CellOutcome::kInvalid;
+        continue;
+      }
+      if (edge_test &&
+          ((u > u0 && jump(z, row[u - 1])) || (v > v0 && jump(z, row[u - depth.width]))))
+        return CellOutcome::kEdge;
+      const double x = u_ray[u] * z, y = vr * z;
+      if (count == 0) {
+        ox = x;
+        oy = y;
+        oz = z;
+      }
+      const double dx = x - ox, dy = y - oy, dz = z - oz;
+      sx += dx;
+      sy += dy;
+      sz += dz;
+      sxx += dx * dx;
+      sxy += dx * dy;
+      sxz += dx * dz;
+      syy += dy * dy;
+      syz += dy * dz;
+      szz += dz * dz;
       ++count;
     }
-    // Early out for the default drop-out rule once too many pixels are missing.
-    if ((v - v0 + 1) * n - count > n * n - min_valid) return CellOutcome::kInvalid;
   }
   if (count < min_valid || count < 3) return CellOutcome::kInvalid;
-  if (config.edge_jump_rel > 0.0 && spansEdge(depth, u0, v0, n, config)) return CellOutcome::kEdge;
 
   const double inv = 1.0 / count;
-  const Eigen::Vector3d mean(sx * inv, sy * inv, sz * inv);
-  // Second pass about the mean: accurate covariance even for metre-scale offsets in float input.
-  double cxx = 0, cxy = 0, cxz = 0, cyy = 0, cyz = 0, czz = 0;
-  for (int i = 0; i < count; ++i) {
-    const double dx = xs[i] - mean.x(), dy = ys[i] - mean.y(), dz = zs[i] - mean.z();
-    cxx += dx * dx;
-    cxy += dx * dy;
-    cxz += dx * dz;
-    cyy += dy * dy;
-    cyz += dy * dz;
-    czz += dz * dz;
-  }
+  const double mx = sx * inv, my = sy * inv, mz = sz * inv;
   const double norm = 1.0 / (count - 1);
   Eigen::Matrix3d cov;
-  cov << cxx, cxy, cxz, cxy, cyy, cyz, cxz, cyz, czz;
-  cov *= norm;
+  cov(0, 0) = (sxx - sx * mx) * norm;
+  cov(0, 1) = cov(1, 0) = (sxy - sx * my) * norm;
+  cov(0, 2) = cov(2, 0) = (sxz - sx * mz) * norm;
+  cov(1, 1) = (syy - sy * my) * norm;
+  cov(1, 2) = cov(2, 1) = (syz - sy * mz) * norm;
+  cov(2, 2) = (szz - sz * mz) * norm;
+  const Eigen::Vector3d mean(ox + mx, oy + my, oz + mz);
 
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
   es.computeDirect(cov);
-  Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
+  const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
   if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
     return CellOutcome::kDegenerate;
   Eigen::Matrix3d vecs = es.eigenvectors();
   Eigen::Vector3d normal = vecs.col(0).normalized();
   if (normal.dot(mean) > 0.0) normal = -normal;  // face the camera (which sits at the origin)
-  vecs.col(0) = normal;
   if (!normal.allFinite()) return CellOutcome::kDegenerate;
-
-  const Eigen::Vector3d reg = lambda.array() + config.min_eigenvalue_m2;
-  const Eigen::Matrix3d inv_sqrt =
-      vecs * reg.array().rsqrt().matrix().asDiagonal() * vecs.transpose();
+  vecs.col(0) = normal;
 
   cell->gx = gx;
   cell->gy = gy;
@@ -139,46 +132,78 @@ CellOutcome reduceCell(const DepthImage& depth, const std::vector<float>& u_ray,
   cell->cov = cov.cast<float>();
   cell->eigenvalues = lambda.cast<float>();
   cell->eigenvectors = vecs.cast<float>();
-  cell->cov_inv_sqrt = inv_sqrt.cast<float>();
+  if (config.compute_inv_sqrt) {
+    const Eigen::Vector3d reg = lambda.array() + config.min_eigenvalue_m2;
+    cell->cov_inv_sqrt =
+        (vecs * reg.array().rsqrt().matrix().asDiagonal() * vecs.transpose()).cast<float>();
+  } else {
+    cell->cov_inv_sqrt.setZero();
+  }
   const double sum = lambda.sum();
   cell->surface_variation = static_cast<float>(sum > 0.0 ? lambda(0) / sum : 0.0);
   cell->det = static_cast<float>(lambda.prod());
   return CellOutcome::kKept;
 }
 
-// Re-estimates each cell's normal from the pooled scatter of the cells around it (sufficient
-// statistics: count, mean, covariance), skipping neighbours whose mean is far from the cell's.
+// Re-estimates each cell's normal from the pooled scatter of the cells around it, skipping
+// neighbours whose mean is far from the cell's. Per-cell sufficient statistics about the camera
+// origin (count k, k*mean, (k-1)*cov + k*mean*mean^T) are summed in double precision, where the
+// metre-sized terms cancel to well below the covariance of a millimetre-noise patch.
 void poolNormals(const PcaConfig& config, CellCloud* cloud) {
-  const int r = config.normal_radius_cells;
-  const double max_d2 = config.normal_merge_dist_m * config.normal_merge_dist_m;
-  std::vector<Eigen::Vector3f> normals(cloud->cells.size());
-  for (std::size_t i = 0; i < cloud->cells.size(); ++i) {
+  struct Stats {
+    double k;
+    Eigen::Vector3d s1;
+    double s2[6];  // xx xy xz yy yz zz
+  };
+  const std::size_t n_cells = cloud->cells.size();
+  std::vector<Stats> st(n_cells);
+  for (std::size_t i = 0; i < n_cells; ++i) {
     const Cell& c = cloud->cells[i];
-    const Eigen::Vector3d m0 = c.mean_C.cast<double>();
-    double n = 0.0;
+    const double k = c.n_valid;
+    const Eigen::Vector3d m = c.mean_C.cast<double>();
+    st[i].k = k;
+    st[i].s1 = k * m;
+    const Eigen::Matrix3f& C = c.cov;
+    st[i].s2[0] = (k - 1) * C(0, 0) + k * m.x() * m.x();
+    st[i].s2[1] = (k - 1) * C(0, 1) + k * m.x() * m.y();
+    st[i].s2[2] = (k - 1) * C(0, 2) + k * m.x() * m.z();
+    st[i].s2[3] = (k - 1) * C(1, 1) + k * m.y() * m.y();
+    st[i].s2[4] = (k - 1) * C(1, 2) + k * m.y() * m.z();
+    st[i].s2[5] = (k - 1) * C(2, 2) + k * m.z() * m.z();
+  }
+  const int r = config.normal_radius_cells;
+  const float max_d2 = static_cast<float>(config.normal_merge_dist_m * config.normal_merge_dist_m);
+  std::vector<Eigen::Vector3f> normals(n_cells);
+  for (std::size_t i = 0; i < n_cells; ++i) {
+    const Cell& c = cloud->cells[i];
+    double k = 0, s2[6] = {0, 0, 0, 0, 0, 0};
     Eigen::Vector3d s1 = Eigen::Vector3d::Zero();
-    Eigen::Matrix3d s2 = Eigen::Matrix3d::Zero();  // sum of outer products about m0
-    for (int y = c.gy - r; y <= c.gy + r; ++y)
-      for (int x = c.gx - r; x <= c.gx + r; ++x) {
-        const int j = cloud->cellAt(x, y);
-        if (j < 0) continue;
-        const Cell& o = cloud->cells[j];
-        const Eigen::Vector3d d = o.mean_C.cast<double>() - m0;
-        if (d.squaredNorm() > max_d2) continue;
-        const double k = o.n_valid;
-        n += k;
-        s1 += k * d;
-        s2 += (k - 1.0) * o.cov.cast<double>() + k * d * d.transpose();
+    for (int y = std::max(0, c.gy - r); y <= std::min(cloud->grid_h - 1, c.gy + r); ++y) {
+      const int* idx = cloud->grid_index.data() + static_cast<std::size_t>(y) * cloud->grid_w;
+      for (int x = std::max(0, c.gx - r); x <= std::min(cloud->grid_w - 1, c.gx + r); ++x) {
+        const int j = idx[x];
+        if (j < 0 || (cloud->cells[j].mean_C - c.mean_C).squaredNorm() > max_d2) continue;
+        const Stats& o = st[j];
+        k += o.k;
+        s1 += o.s1;
+        for (int e = 0; e < 6; ++e) s2[e] += o.s2[e];
       }
-    const Eigen::Vector3d mean = s1 / n;
-    const Eigen::Matrix3d scatter = s2 - n * mean * mean.transpose();
+    }
+    const Eigen::Vector3d m = s1 / k;
+    Eigen::Matrix3d S;
+    S(0, 0) = s2[0] - k * m.x() * m.x();
+    S(0, 1) = S(1, 0) = s2[1] - k * m.x() * m.y();
+    S(0, 2) = S(2, 0) = s2[2] - k * m.x() * m.z();
+    S(1, 1) = s2[3] - k * m.y() * m.y();
+    S(1, 2) = S(2, 1) = s2[4] - k * m.y() * m.z();
+    S(2, 2) = s2[5] - k * m.z() * m.z();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(scatter);
+    es.computeDirect(S);
     Eigen::Vector3d normal = es.eigenvectors().col(0).normalized();
-    if (normal.dot(m0) > 0.0) normal = -normal;
+    if (normal.dot(c.mean_C.cast<double>()) > 0.0) normal = -normal;
     normals[i] = normal.allFinite() ? normal.cast<float>() : c.normal_C;
   }
-  for (std::size_t i = 0; i < normals.size(); ++i) cloud->cells[i].normal_C = normals[i];
+  for (std::size_t i = 0; i < n_cells; ++i) cloud->cells[i].normal_C = normals[i];
 }
 
 }  // namespace
@@ -205,41 +230,53 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
   const int min_valid =
       std::max(3, static_cast<int>(std::ceil(config.min_valid_fraction * per_cell - 1e-9)));
 
-  // Reduce into a dense grid-ordered buffer, then compact: deterministic for any thread count.
-  std::vector<Cell> dense(n_cells);
-  std::vector<unsigned char> outcome(n_cells);
-  auto rows = [&](const tbb::blocked_range<int>& r) {
-    for (int gy = r.begin(); gy < r.end(); ++gy)
-      for (int gx = 0; gx < cloud.grid_w; ++gx) {
-        const int i = gy * cloud.grid_w + gx;
-        outcome[i] = static_cast<unsigned char>(
-            reduceCell(depth, u_ray, v_ray, gx, gy, config, min_valid, &dense[i]));
+  // Cells are produced row by row in grid order, so the result is the same for any thread count.
+  auto reduceRow = [&](int gy, std::vector<Cell>* out, ReductionStats* stats) {
+    Cell cell;
+    for (int gx = 0; gx < cloud.grid_w; ++gx) {
+      switch (reduceCell(depth, u_ray.data(), v_ray.data(), gx, gy, config, min_valid, &cell)) {
+        case CellOutcome::kKept:
+          out->push_back(cell);
+          break;
+        case CellOutcome::kInvalid:
+          ++stats->pruned_invalid;
+          break;
+        case CellOutcome::kDegenerate:
+          ++stats->pruned_degenerate;
+          break;
+        case CellOutcome::kEdge:
+          ++stats->pruned_edge;
+          break;
       }
+    }
   };
   if (threads > 1) {
+    std::vector<std::vector<Cell>> rows(cloud.grid_h);
+    std::vector<ReductionStats> row_stats(cloud.grid_h);
     tbb::task_arena arena(threads);
-    arena.execute([&] { tbb::parallel_for(tbb::blocked_range<int>(0, cloud.grid_h, 4), rows); });
-  } else {
-    rows(tbb::blocked_range<int>(0, cloud.grid_h));
-  }
-
-  cloud.cells.reserve(n_cells);
-  for (int i = 0; i < n_cells; ++i) {
-    switch (static_cast<CellOutcome>(outcome[i])) {
-      case CellOutcome::kKept:
-        cloud.grid_index[i] = static_cast<int>(cloud.cells.size());
-        cloud.cells.push_back(dense[i]);
-        break;
-      case CellOutcome::kInvalid:
-        ++cloud.stats.pruned_invalid;
-        break;
-      case CellOutcome::kDegenerate:
-        ++cloud.stats.pruned_degenerate;
-        break;
-      case CellOutcome::kEdge:
-        ++cloud.stats.pruned_edge;
-        break;
+    arena.execute([&] {
+      tbb::parallel_for(tbb::blocked_range<int>(0, cloud.grid_h, 4),
+                        [&](const tbb::blocked_range<int>& r) {
+                          for (int gy = r.begin(); gy < r.end(); ++gy)
+                            reduceRow(gy, &rows[gy], &row_stats[gy]);
+                        });
+    });
+    std::size_t total = 0;
+    for (const auto& r : rows) total += r.size();
+    cloud.cells.reserve(total);
+    for (int gy = 0; gy < cloud.grid_h; ++gy) {
+      cloud.cells.insert(cloud.cells.end(), rows[gy].begin(), rows[gy].end());
+      cloud.stats.pruned_invalid += row_stats[gy].pruned_invalid;
+      cloud.stats.pruned_degenerate += row_stats[gy].pruned_degenerate;
+      cloud.stats.pruned_edge += row_stats[gy].pruned_edge;
     }
+  } else {
+    cloud.cells.reserve(n_cells);
+    for (int gy = 0; gy < cloud.grid_h; ++gy) reduceRow(gy, &cloud.cells, &cloud.stats);
+  }
+  for (std::size_t i = 0; i < cloud.cells.size(); ++i) {
+    const Cell& c = cloud.cells[i];
+    cloud.grid_index[static_cast<std::size_t>(c.gy) * cloud.grid_w + c.gx] = static_cast<int>(i);
   }
   if (config.normal_radius_cells > 0) poolNormals(config, &cloud);
   cloud.stats.total = n_cells;

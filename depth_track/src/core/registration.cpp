@@ -218,7 +218,8 @@ double huberWeight(double residual, const RegistrationConfig& config) {
 // [omega; v] with p' = p + omega x p + v. Returns false when the system is singular.
 bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const MatchResult& m,
                        const RegistrationConfig& config, Vector6d* xi, double* rms) {
-  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
+  double h[21] = {0};
   Vector6d g = Vector6d::Zero();
   double sq = 0.0;
   for (const auto& [r, c] : m.pairs) {
@@ -227,15 +228,24 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
     const Eigen::Vector3d p = moved.p[c].cast<double>();
     const double e = n.dot(p - q);
     sq += e * e;
-    Vector6d J;
-    J.head<3>() = p.cross(n);
-    J.tail<3>() = n;
+    const Eigen::Vector3d pxn = p.cross(n);
+    const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
     const double w = huberWeight(e, config);
-    H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
-    g += w * e * J;
+    int k = 0;
+    for (int i = 0; i < 6; ++i) {
+      const double wJi = w * J[i];
+      g(i) += wJi * e;
+      for (int j = i; j < 6; ++j) h[k++] += wJi * J[j];
+    }
+  }
+  Eigen::Matrix<double, 6, 6> H;
+  {
+    int k = 0;
+    for (int i = 0; i < 6; ++i)
+      for (int j = i; j < 6; ++j) H(i, j) = H(j, i) = h[k++];
   }
   *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
-  Eigen::Matrix<double, 6, 6> Hs = H.selfadjointView<Eigen::Upper>();
+  Eigen::Matrix<double, 6, 6> Hs = H;
   // A whisper of damping keeps directions the scene cannot observe (a bare wall) at zero motion.
   Hs.diagonal().array() += 1e-9 * Hs.trace() / 6.0 + 1e-12;
   Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(Hs);

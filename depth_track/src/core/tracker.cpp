@@ -45,6 +45,8 @@ Tracker::Tracker(const PinholeIntrinsics& intrinsics, const TrackerConfig& confi
   if (!T_W_C0.matrix().allFinite())
     throw std::invalid_argument("tracker: initial pose is not finite");
   config_.registration.fm_eps_m2 = config_.pca.min_eigenvalue_m2;
+  // Only Cell Search's Förstner–Moonen gate reads the inverse square roots.
+  config_.pca.compute_inv_sqrt = config_.registration.method == RegistrationMethod::kCellSearch;
 }
 
 void Tracker::correctPose(const Eigen::Isometry3d& T_W_C) {

@@ -66,6 +66,8 @@ struct PcaConfig {
   /// Regulariser added to covariances for cov_inv_sqrt, m^2: (1 mm)^2, about the depth noise of a
   /// good sensor, so the Förstner–Moonen metric does not weigh sub-noise thicknesses.
   double min_eigenvalue_m2 = 1e-6;
+  /// Fill Cell::cov_inv_sqrt (needed by the Förstner–Moonen gate of Cell Search only).
+  bool compute_inv_sqrt = true;
 
   /// Every problem for frames of width x height pixels (a size that does not tile is named).
   std::vector<std::string> validate(int width, int height) const;

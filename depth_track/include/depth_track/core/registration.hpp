@@ -25,7 +25,7 @@ struct MatchConfig {
       0.2;                ///< first-iteration gate, halved per iteration down to dist_min_m, m
   double cos_min = 0.99;  ///< min cosine between paired normals (CosMin); cos(8.1 deg)
   double normal_weight_m = 0.05;  ///< metres per unit of normal difference in the 6-vector distance
-  int search_radius_cells = 2;    ///< image-grid window (cells) around the predicted position
+  int search_radius_cells = 1;    ///< image-grid window (cells) around the predicted position
 };
 
 /// Registration configuration (thesis fig. 5.1 names in brackets).
