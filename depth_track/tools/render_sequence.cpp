@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
   int threads = 0;
   int max_frames = -1;
   double depth_bias = 0.0;
+  double scan_time_ms = 0.0;
   std::string known;
   for (const auto& k : sim::knownRuns()) known += (known.empty() ? "" : ", ") + k;
   app.add_option("--run", run_name, "run name: " + known)->required();
@@ -62,10 +63,16 @@ int main(int argc, char** argv) {
   app.add_option("--depth-bias", depth_bias,
                  "systematic depth scale error (0.0063 = the thesis's L515, table 4.2)")
       ->capture_default_str();
+  app.add_option("--scan-time-ms", scan_time_ms,
+                 "row-scan time of a frame, ms (0 = all rows at the stamp; moving runs only)")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   try {
-    const sim::RenderedRun run = sim::makeRun(run_name);
+    sim::RenderedRun run = sim::makeRun(run_name);
+    if (!(scan_time_ms >= 0.0 && scan_time_ms <= 1000.0))
+      throw std::invalid_argument("--scan-time-ms must be in [0, 1000]");
+    run.scan_time_s = scan_time_ms / 1000.0;
     sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name));
     noise.depth_scale_bias = depth_bias;
     if (threads < 0) throw std::invalid_argument("--threads must be >= 0");

@@ -198,3 +198,37 @@ TEST(RenderedRuns, BadSpecsAreNamed) {
   s.segments = {{0.0, 0.3, 0.0}};
   EXPECT_THROW(makeTruckRun(s, hallwayScene()), std::invalid_argument);
 }
+
+// Row scanning: in RT1 the camera moves straight at the back wall at 95 mm/s, so rows scanned
+// later see the wall nearer by speed * (row time difference). Rows 20 and 200 of column 320 see
+// the wall; with a 33.3 ms scan they are 12.5 ms apart: 1.19 mm. Band rendering (8 rows share a
+// pose) adds at most 2 x 4 rows of scan time: +-0.05 mm.
+TEST(RenderedRuns, RowScanShiftsDepthByTheMotionDuringTheScan) {
+  RenderedRun run = makeRun("rt1");
+  ASSERT_TRUE(run.pose_at);
+  EXPECT_TRUE(run.pose_at(run.stamps_s[100]).isApprox(run.T_W_C[100], 1e-12));
+  const NoiseConfig none = NoiseConfig::forModel(NoiseModel::kNone);
+  const DepthImage global = run.renderFrame(100, none, 0);
+  EXPECT_NEAR(global.at(320, 20), global.at(320, 200), 1e-6);
+  run.scan_time_s = 1.0 / 30.0;
+  const DepthImage scanned = run.renderFrame(100, none, 0);
+  const double expected = 0.095 * run.scan_time_s * (180.0 / 480.0);
+  EXPECT_NEAR(scanned.at(320, 20) - scanned.at(320, 200), expected, 5e-5);
+  // The middle row is seen at the stamp.
+  EXPECT_NEAR(scanned.at(320, 240 - 4), global.at(320, 240 - 4), 5e-5);
+  // Stepped runs are at rest while a frame is captured: scanning changes nothing.
+  RenderedRun xtest = makeRun("xtest1_05_chair");
+  EXPECT_FALSE(xtest.pose_at);
+  const DepthImage a = xtest.renderFrame(50, none, 0);
+  xtest.scan_time_s = 1.0 / 30.0;
+  EXPECT_EQ(a.data, xtest.renderFrame(50, none, 0).data);
+  // Truck runs interpolate between frames.
+  const RenderedRun room = makeRun("room3");
+  ASSERT_TRUE(room.pose_at);
+  EXPECT_TRUE(room.pose_at(room.stamps_s[300]).isApprox(room.T_W_C[300], 1e-9));
+  const Eigen::Isometry3d mid = room.pose_at(0.5 * (room.stamps_s[300] + room.stamps_s[301]));
+  // Halfway between frames the chord lies inside the circle by the sagitta s^2 / (8 r).
+  const double r_cam = std::hypot(0.7, 0.12);
+  const double chord = (room.T_W_C[301].translation() - room.T_W_C[300].translation()).norm();
+  EXPECT_NEAR(mid.translation().head<2>().norm(), r_cam - chord * chord / (8 * r_cam), 1e-7);
+}

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <stdexcept>
 
@@ -128,10 +129,9 @@ float toDepth(double z, const DepthRange& range) {
   return (std::isfinite(z) && z >= range.min_m && z <= range.max_m) ? static_cast<float>(z) : 0.0f;
 }
 
-RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
-                         const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads,
-                         bool incidence) {
-  validateInputs(scene, K, T_W_C, range);
+/// Primitives prepared for the pose shared by one band of rows, nearest first.
+std::vector<FramePrimitive> prepareBand(const Scene& scene, const Eigen::Isometry3d& T_W_C,
+                                        const PinholeIntrinsics& K) {
   const Eigen::Isometry3d T_C_W = T_W_C.inverse();
   std::vector<FramePrimitive> prims;
   prims.reserve(scene.primitives.size());
@@ -142,6 +142,17 @@ RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
   // Nearest first, so the z_min test skips hidden primitives early.
   std::sort(prims.begin(), prims.end(),
             [](const FramePrimitive& a, const FramePrimitive& b) { return a.z_min < b.z_min; });
+  return prims;
+}
+
+/// Renders rows in bands of band_rows rows, band b seen from band_poses[b].
+RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
+                         const std::vector<Eigen::Isometry3d>& band_poses, int band_rows,
+                         const DepthRange& range, int threads, bool incidence) {
+  for (const auto& T : band_poses) validateInputs(scene, K, T, range);
+  std::vector<std::vector<FramePrimitive>> bands;
+  bands.reserve(band_poses.size());
+  for (const auto& T : band_poses) bands.push_back(prepareBand(scene, T, K));
 
   RenderedDepth result;
   result.depth = DepthImage(K.width, K.height);
@@ -149,8 +160,8 @@ RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
   DepthImage& out = result.depth;
   auto rows = [&](const tbb::blocked_range<int>& r) {
     std::vector<const FramePrimitive*> candidates;
-    candidates.reserve(prims.size());
     for (int v = r.begin(); v < r.end(); ++v) {
+      const auto& prims = bands[std::min<std::size_t>(v / band_rows, bands.size() - 1)];
       candidates.clear();
       for (const auto& f : prims)
         if (v >= f.v0 && v <= f.v1) candidates.push_back(&f);
@@ -182,13 +193,31 @@ RenderedDepth renderImpl(const Scene& scene, const PinholeIntrinsics& K,
 
 DepthImage renderDepth(const Scene& scene, const PinholeIntrinsics& K,
                        const Eigen::Isometry3d& T_W_C, const DepthRange& range, int threads) {
-  return renderImpl(scene, K, T_W_C, range, threads, false).depth;
+  const int h = std::max(K.height, 1);
+  return renderImpl(scene, K, {T_W_C}, h, range, threads, false).depth;
 }
 
 RenderedDepth renderDepthWithIncidence(const Scene& scene, const PinholeIntrinsics& K,
                                        const Eigen::Isometry3d& T_W_C, const DepthRange& range,
                                        int threads) {
-  return renderImpl(scene, K, T_W_C, range, threads, true);
+  const int h = std::max(K.height, 1);
+  return renderImpl(scene, K, {T_W_C}, h, range, threads, true);
+}
+
+RenderedDepth renderDepthScanned(const Scene& scene, const PinholeIntrinsics& K,
+                                 const std::function<Eigen::Isometry3d(double row)>& T_W_C_at_row,
+                                 const DepthRange& range, int threads, int band_rows) {
+  if (!T_W_C_at_row) throw std::invalid_argument("renderDepthScanned: no pose function given");
+  if (band_rows < 1) throw std::invalid_argument("renderDepthScanned: band_rows must be >= 1");
+  const auto k_problems = K.validate();
+  if (!k_problems.empty())
+    throw std::invalid_argument("renderDepthScanned: " + joinProblems(k_problems));
+  std::vector<Eigen::Isometry3d> poses;
+  for (int v0 = 0; v0 < K.height; v0 += band_rows) {
+    const int v1 = std::min(K.height, v0 + band_rows) - 1;
+    poses.push_back(T_W_C_at_row(0.5 * (v0 + v1)));
+  }
+  return renderImpl(scene, K, poses, band_rows, range, threads, true);
 }
 
 DepthImage renderDepthReference(const Scene& scene, const PinholeIntrinsics& K,

@@ -1,5 +1,6 @@
 #include "depth_track/core/sim/rendered_run.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -22,7 +23,17 @@ DepthImage RenderedRun::renderFrame(std::size_t i, const NoiseConfig& noise, std
     s << "run '" << name << "' has " << T_W_C.size() << " frames; frame " << i << " requested";
     throw std::out_of_range(s.str());
   }
-  const RenderedDepth clean = renderDepthWithIncidence(scene, intrinsics, T_W_C[i], range, threads);
+  RenderedDepth clean;
+  if (scan_time_s > 0.0 && pose_at) {
+    const double t0 = stamps_s[i], h = intrinsics.height;
+    const double scan = scan_time_s;
+    const auto& pose = pose_at;
+    clean = renderDepthScanned(
+        scene, intrinsics, [&](double row) { return pose(t0 + scan * ((row + 0.5) / h - 0.5)); },
+        range, threads);
+  } else {
+    clean = renderDepthWithIncidence(scene, intrinsics, T_W_C[i], range, threads);
+  }
   return applyNoise(clean.depth, noise, frameSeed(run_seed, i), range, &clean.cos_incidence);
 }
 
@@ -70,6 +81,19 @@ RenderedRun makeTrackRun(const TrackRunSpec& spec, const Scene& scene, const Tra
     run.T_W_C.push_back(cameraPoseOnTrack(s.track_pos_m, s.pitch_rad, s.yaw_rad, track));
   };
   const double dt = 1.0 / spec.rate_hz;
+  if (spec.step_m <= 0.0) {
+    // Continuous motion from the last still frame on; at rest before it.
+    const double t_move = spec.still_frames * dt;
+    run.pose_at = [spec, track, t_move](double t) {
+      const double tm = std::max(0.0, t - t_move);
+      const double pos = spec.start_pos_m + spec.speed_mps * tm;
+      const double a =
+          t < t_move ? 0.0
+                     : spec.amplitude_deg * kDeg * std::sin(2.0 * M_PI * spec.frequency_hz * tm);
+      return cameraPoseOnTrack(pos, spec.axis == TrackRunSpec::Axis::kPitch ? a : 0.0,
+                               spec.axis == TrackRunSpec::Axis::kYaw ? a : 0.0, track);
+    };
+  }
   int k = 0;
   for (; k < spec.still_frames; ++k) add(k * dt, spec.start_pos_m, 0.0);
   if (spec.step_m > 0.0) {
@@ -161,6 +185,22 @@ RenderedRun makeTruckRun(const TruckRunSpec& spec, const Scene& scene) {
     add(k * dt);
     ++k;
   }
+  // Between frames the motion is a short arc; interpolating the frame poses (linear position,
+  // slerp rotation) cuts its chord: 0.02 mm off for a 10 mm step on a 0.7 m circle (sagitta
+  // s^2 / 8r), far below the sensor noise.
+  const std::vector<Eigen::Isometry3d> poses = run.T_W_C;
+  run.pose_at = [poses, dt](double t) {
+    const double x = std::clamp(t / dt, 0.0, static_cast<double>(poses.size() - 1));
+    const std::size_t a = static_cast<std::size_t>(std::floor(x));
+    const std::size_t b = std::min(a + 1, poses.size() - 1);
+    const double f = x - static_cast<double>(a);
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::Quaterniond(poses[a].linear())
+                     .slerp(f, Eigen::Quaterniond(poses[b].linear()))
+                     .toRotationMatrix();
+    T.translation() = (1.0 - f) * poses[a].translation() + f * poses[b].translation();
+    return T;
+  };
   return run;
 }
 

@@ -1,6 +1,7 @@
 #pragma once
 /// Synthetic depth rendering of an analytic scene (ROS-free, library depth_track_sim).
 #include <Eigen/Geometry>
+#include <functional>
 #include <vector>
 
 #include "depth_track/core/camera.hpp"
@@ -32,6 +33,15 @@ struct RenderedDepth {
 RenderedDepth renderDepthWithIncidence(const Scene& scene, const PinholeIntrinsics& intrinsics,
                                        const Eigen::Isometry3d& T_W_C, const DepthRange& range,
                                        int threads = 0);
+
+/// A frame scanned row by row (the L515's MEMS raster, or a rolling shutter): row v is seen from
+/// T_W_C_at_row(v) (v = row index, may be fractional). Rows are rendered in bands of band_rows
+/// rows sharing the pose at the band's centre row (band_rows = 1 is exact per row). Same depth
+/// and incidence contract, threads and exceptions as renderDepthWithIncidence. Thread-safe if
+/// the pose function is.
+RenderedDepth renderDepthScanned(const Scene& scene, const PinholeIntrinsics& intrinsics,
+                                 const std::function<Eigen::Isometry3d(double row)>& T_W_C_at_row,
+                                 const DepthRange& range, int threads = 0, int band_rows = 8);
 
 /// Reference renderer for equivalence tests: same contract as renderDepth, but tests every
 /// primitive for every pixel without screen-space culling, serially. Slow; not for runs.

@@ -3,6 +3,7 @@
 /// (ROS-free, library depth_track_sim). Frames are rendered on demand with a noise model.
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -36,11 +37,19 @@ struct RenderedRun {
   bool on_track = false;                 ///< ServoTrack run: `track` and `rig` are meaningful
   TrackGeometry track;                   ///< rig geometry used for T_W_C (ServoTrack runs)
   std::vector<RigSample> rig;            ///< per-frame rig readings (ServoTrack runs)
+  /// Camera pose T_W_C at any time t (seconds) for runs whose camera moves while a frame is
+  /// captured (continuous ServoTrack and all ServoTruck runs); empty for stepped runs.
+  std::function<Eigen::Isometry3d(double t_s)> pose_at;
+  /// Time to scan one frame from the top row to the bottom row, seconds. 0 (default) renders
+  /// every row at the frame's stamp; > 0 (the L515's MEMS raster takes most of the 33 ms frame
+  /// period) renders row v at stamp + scan_time_s * ((v + 0.5) / height - 0.5), so T_W_C is the
+  /// pose of the middle row. Ignored when pose_at is empty.
+  double scan_time_s = 0.0;
 
   std::size_t size() const { return stamps_s.size(); }
-  /// Renders frame `i` with the given noise; the noise seed is frameSeed(run_seed, i), so a
-  /// frame is the same whatever order frames are rendered in. Throws std::out_of_range for a
-  /// bad index. Thread-safe.
+  /// Renders frame `i` (row-scanned when scan_time_s > 0) with the given noise; the noise seed
+  /// is frameSeed(run_seed, i), so a frame is the same whatever order frames are rendered in.
+  /// Throws std::out_of_range for a bad index. Thread-safe.
   DepthImage renderFrame(std::size_t i, const NoiseConfig& noise, std::uint64_t run_seed,
                          int threads = 0) const;
   /// renderFrame encoded as a 16UC1 buffer in the noise model's native unit
