@@ -45,7 +45,14 @@ std::string fmt(double d) {
 template <typename Member>
 ParamSpec num(const char* name, const char* unit, const char* help, Member member) {
   return {name, unit, help,
-          [member](const TrackerConfig& c) { return fmt(member(const_cast<TrackerConfig&>(c))); },
+          [member](const TrackerConfig& c) {
+            const auto value = member(const_cast<TrackerConfig&>(c));
+            if constexpr (std::is_same_v<std::decay_t<decltype(value)>, bool>) {
+              return std::string(value ? "true" : "false");
+            } else {
+              return fmt(value);
+            }
+          },
           [member, name](TrackerConfig& c, const std::string& v) {
             using T = std::remove_reference_t<decltype(member(c))>;
             if constexpr (std::is_same_v<T, int>) {
@@ -59,7 +66,6 @@ ParamSpec num(const char* name, const char* unit, const char* help, Member membe
 }
 
 std::vector<ParamSpec> makeParams() {
-  constexpr double kDeg = M_PI / 180.0;
   std::vector<ParamSpec> p;
   // ---- prefilter (thesis fig. 5.1 PreFilter, Ksz, Spatial_Const, Depth_Const) ----
   p.push_back(
@@ -164,7 +170,6 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> double& { return c.max_jump_deg; }));
   p.push_back(num("constant_velocity", "", "predict with the last motion (on/off)",
                   [](TrackerConfig& c) -> bool& { return c.constant_velocity; }));
-  (void)kDeg;
   return p;
 }
 
