@@ -4,11 +4,13 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <map>
 #include <memory>
 #include <sstream>
 
+#include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
@@ -253,6 +255,17 @@ int main(int argc, char** argv) {
       writeTumTrajectory(
           gt_out_path, gt,
           "ground truth of rendered run " + render_name + ", relative to its first pose");
+    }
+    // Score against ground truth when there is one: the rendered run's, or the TUM folder's.
+    Trajectory truth = gt;
+    if (!rendered && std::filesystem::exists(tum_dir + "/groundtruth.txt"))
+      truth = readTumTrajectory(tum_dir + "/groundtruth.txt");
+    if (truth.size() >= 2) {
+      try {
+        std::printf("%s\n", formatEvaluation(evaluateTrajectory(est, truth)).c_str());
+      } catch (const std::invalid_argument& e) {
+        std::printf("no evaluation: %s\n", e.what());
+      }
     }
     for (const auto& [reason, count] : failures)
       std::printf("flagged %d frames: %s\n", count, reason.c_str());
