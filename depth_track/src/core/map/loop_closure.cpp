@@ -27,6 +27,9 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   if (!(max_correction_m > 0.0)) p.push_back("max_correction_m must be > 0 m");
   if (!(max_correction_deg > 0.0)) p.push_back("max_correction_deg must be > 0 deg");
   if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
+  if (min_model_age_frames < 0) p.push_back("min_model_age_frames must be >= 0");
+  if (!(deadband_m >= 0.0) || !(deadband_deg >= 0.0))
+    p.push_back("deadband_m and deadband_deg must be >= 0");
   return p;
 }
 
@@ -43,7 +46,8 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   LoopClosureResult r;
   r.T_W_C = T_W_C_pred;
   auto t0 = std::chrono::steady_clock::now();
-  const DepthImage virt = map.raycast(intrinsics, T_W_C_pred, range);
+  const DepthImage virt =
+      map.raycast(intrinsics, T_W_C_pred, range, 1, config.min_model_age_frames);
   r.ms_raycast = msSince(t0);
   r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
   std::ostringstream why;
@@ -90,6 +94,10 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   } else if (r.error_rms_m > config.max_error_rms_m) {
     why << "poor fit: residual RMS " << 1000.0 * r.error_rms_m << " mm (> "
         << 1000.0 * config.max_error_rms_m << " mm)";
+  } else if (r.correction_m < config.deadband_m && r.correction_deg < config.deadband_deg) {
+    why << "correction below the map's resolution: " << 1000.0 * r.correction_m << " mm, "
+        << r.correction_deg << " deg (dead band " << 1000.0 * config.deadband_m << " mm, "
+        << config.deadband_deg << " deg); not applied";
   }
   if (!why.str().empty()) {
     r.reason = why.str();

@@ -105,12 +105,15 @@ bool viewBox(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_C_W,
 }  // namespace
 
 DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_C,
-                             const DepthRange& range, int threads) const {
+                             const DepthRange& range, int threads, int min_age_frames) const {
   checkRaycastInput(K, T_W_C, range);
+  if (min_age_frames < 0) throw std::invalid_argument("raycast: min_age_frames must be >= 0");
   const Impl& m = *impl_;
   const int w = K.width, h = K.height;
   DepthImage out(w, h, 0.0f);
   if (m.occupied_count == 0) return out;
+  if (static_cast<std::uint32_t>(min_age_frames) >= m.frame) return out;
+  const std::uint32_t born_max = m.frame - static_cast<std::uint32_t>(min_age_frames);
 
   // Near/far depth bounds per tile from the occupied blocks that project onto it: no occupied
   // voxel can be met before the nearest such block or after the farthest one.
@@ -126,7 +129,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     const Eigen::Vector3d chunk_lo = ch->coord.cast<double>() * chunk_m;
     if (!viewBox(K, T_C_W, chunk_lo, chunk_m, range.min_m, range.max_m, &cv)) continue;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
-      if (ch->n_occ[bi] == 0) continue;
+      if (ch->n_occ[bi] == 0 || ch->born[bi] > born_max) continue;
       BoxView bv;
       const Eigen::Vector3d lo =
           chunk_lo + Eigen::Vector3d(bi & 7, (bi >> 3) & 7, bi >> 6) * block_m;
@@ -161,7 +164,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
         const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, y, 1.0);
         HitDepth hit;
         hit.cap = run_cap_m / d.norm();
-        m.walk<true>(o, d, t0, t1, hit);
+        m.walk<true>(o, d, t0, t1, hit, born_max);
         if (hit.found) dst[u] = hit.depth();
       }
     }

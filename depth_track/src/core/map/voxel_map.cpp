@@ -274,6 +274,7 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
       auto& slot = chunk->blocks[bi];
       if (!slot) {
         slot = std::make_unique<Block>();
+        chunk->born[bi] = m.frame;
         ++m.block_count;
       }
       const int i = map_detail::voxelInBlock(x, y, zz);

@@ -65,6 +65,7 @@ struct Chunk {
   // occupancy bits are one cache line here, instead of being spread over its 2 KB of state.
   alignas(64) std::array<std::array<std::uint64_t, 8>, kChunkBlocks> occ{};
   std::array<std::uint16_t, kChunkBlocks> n_occ{};
+  std::array<std::uint32_t, kChunkBlocks> born{};  // frame in which each block was allocated
   bool occupiedAt(int bi, int i) const { return (occ[bi][i >> 6] >> (i & 63)) & 1u; }
 };
 
@@ -112,9 +113,11 @@ struct VoxelMap::Impl {
   // voxels of allocated blocks, skipping missing chunks/blocks whole; with kOccupiedOnly it skips
   // chunks and blocks without an occupied voxel instead (and may visit voxels of unallocated
   // blocks of a chunk when kNoSkip). f(chunk, block index, voxel index, t_in, t_out) returns
-  // true to stop. Returns false when the ray ran out.
+  // true to stop. With kOccupiedOnly, blocks allocated after frame `born_max` count as empty.
+  // Returns false when the ray ran out.
   template <bool kOccupiedOnly, bool kNoSkip = false, class F>
-  bool walk(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0, double t1, F&& f) const {
+  bool walk(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0, double t1, F&& f,
+            std::uint32_t born_max = std::numeric_limits<std::uint32_t>::max()) const {
     const Eigen::Vector3d O = o * inv_s;
     const Eigen::Vector3d D = d * inv_s;
     const double inf = std::numeric_limits<double>::infinity();
@@ -135,7 +138,8 @@ struct VoxelMap::Impl {
         shift = map_detail::kChunkShift;
       } else {
         bi = map_detail::blockInChunk(v[0], v[1], v[2]);
-        if (kOccupiedOnly ? c->n_occ[bi] == 0 : !c->blocks[bi]) shift = map_detail::kBlockShift;
+        if (kOccupiedOnly ? (c->n_occ[bi] == 0 || c->born[bi] > born_max) : !c->blocks[bi])
+          shift = map_detail::kBlockShift;
       }
       if (kNoSkip) shift = 0;
       double t_exit = inf;

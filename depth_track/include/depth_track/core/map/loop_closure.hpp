@@ -28,6 +28,14 @@ struct LoopClosureConfig {
     return p;
   }();
   RegistrationConfig registration;  ///< method and pair gates of the correcting registration
+  /// The model is the map without blocks first seen in the last min_model_age_frames fused
+  /// frames: registering against what the last frames just fused only echoes their pose (and
+  /// feeds the map's own bias back into the pose, the thesis's accelerated drift); loop closure
+  /// needs the older, consolidated part of the map.
+  int min_model_age_frames = 60;
+  /// Corrections smaller than this are below what the map resolves; they are not applied.
+  double deadband_m = 0.002;
+  double deadband_deg = 0.1;
   /// Gate 1, sparse model: share of pixels of the virtual image with a return, and its cells.
   double min_model_fraction = 0.25;
   int min_model_cells = 200;

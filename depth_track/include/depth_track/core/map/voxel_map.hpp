@@ -117,10 +117,12 @@ class VoxelMap {
   /// Virtual depth image (metres, 0 = no hit) seen by the camera at T_W_C: the depth of the first
   /// occupied voxel along each pixel ray between range.min_m and range.max_m (mid-point of the
   /// ray's chord through that voxel). Empty space is skipped per chunk and per block, and each
-  /// ray starts at the nearest occupied block projected onto its 4x4-pixel tile. Thread-safe
-  /// against other const calls; `threads` > 1 splits rows over TBB workers.
+  /// ray starts at the nearest occupied block projected onto its 4x4-pixel tile. With
+  /// min_age_frames > 0 only blocks first observed at least that many fused frames ago count (the
+  /// consolidated model, for loop closure). Thread-safe against other const calls; `threads` > 1
+  /// splits rows over TBB workers.
   DepthImage raycast(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
-                     const DepthRange& range, int threads = 1) const;
+                     const DepthRange& range, int threads = 1, int min_age_frames = 0) const;
   /// Reference ray cast: every ray marched from range.min_m voxel by voxel through the same
   /// occupancy test, without skipping. Slow; kept to check raycast() against. Thread-safe.
   DepthImage raycastReference(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
