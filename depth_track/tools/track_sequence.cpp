@@ -271,10 +271,10 @@ int main(int argc, char** argv) {
       std::printf("flagged %d frames: %s\n", count, reason.c_str());
     const CellCloud& cells = tracker.lastCells();
     std::printf(
-        "cells: total=%d retained=%d pruned_invalid=%d pruned_degenerate=%d (last frame, cell size "
-        "%d)\n",
-        cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
-        cells.stats.pruned_degenerate, config.pca.cell_size);
+        "cells (last frame, cell size %d px): total=%d retained=%d pruned_invalid=%d pruned_edge=%d "
+        "pruned_degenerate=%d\n",
+        config.pca.cell_size, cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
+        cells.stats.pruned_edge, cells.stats.pruned_degenerate);
     std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f\n", n, tracked,
                 percentile(ms, 0.5), percentile(ms, 0.95));
     return bad_frames > 0 && tracked == 0 ? 1 : 0;
