@@ -45,6 +45,15 @@ inline double uniform(std::uint64_t seed_mixed, std::size_t idx, Stream s) {
   return (static_cast<double>(h >> 11) + 0.5) * (1.0 / 9007199254740992.0);
 }
 
+/// Standard normal for pixel idx: Box-Muller on the uniforms of the pixel pair idx / 2, whose two
+/// independent outputs (cos and sin) go to the even and the odd pixel.
+inline double pairedGaussian(std::uint64_t seed, std::size_t idx) {
+  const std::size_t pair = idx >> 1;
+  const double u1 = uniform(seed, pair, kGauss1), u2 = uniform(seed, pair, kGauss2);
+  const double r = std::sqrt(-2.0 * std::log(u1));
+  return (idx & 1) ? r * std::sin(2.0 * M_PI * u2) : r * std::cos(2.0 * M_PI * u2);
+}
+
 /// Standard normal by Box-Muller from two uniform streams.
 inline double gaussian(std::uint64_t seed, std::size_t idx, Stream a, Stream b) {
   const double u1 = uniform(seed, idx, a), u2 = uniform(seed, idx, b);
@@ -171,15 +180,17 @@ std::vector<std::uint8_t> edgeDistance(const DepthImage& depth, const NoiseConfi
   checkFrame(depth);
   const int w = depth.width, h = depth.height;
   std::vector<std::uint8_t> d(static_cast<std::size_t>(w) * h, 255);
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      const float z = depth.at(u, v);
-      if ((u > 0 && isJump(z, depth.at(u - 1, v), c)) ||
-          (u + 1 < w && isJump(z, depth.at(u + 1, v), c)) ||
-          (v > 0 && isJump(z, depth.at(u, v - 1), c)) ||
-          (v + 1 < h && isJump(z, depth.at(u, v + 1), c)))
-        d[static_cast<std::size_t>(v) * w + u] = 0;
-    }
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& r) {
+    for (int v = r.begin(); v < r.end(); ++v)
+      for (int u = 0; u < w; ++u) {
+        const float z = depth.at(u, v);
+        if ((u > 0 && isJump(z, depth.at(u - 1, v), c)) ||
+            (u + 1 < w && isJump(z, depth.at(u + 1, v), c)) ||
+            (v > 0 && isJump(z, depth.at(u, v - 1), c)) ||
+            (v + 1 < h && isJump(z, depth.at(u, v + 1), c)))
+          d[static_cast<std::size_t>(v) * w + u] = 0;
+      }
+  });
   // Two-pass chessboard distance transform.
   auto at = [&](int u, int v) -> std::uint8_t& { return d[static_cast<std::size_t>(v) * w + u]; };
   auto relax = [](std::uint8_t& x, std::uint8_t n) {
@@ -241,8 +252,11 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
   std::vector<std::uint8_t> speckle_seed;
   if (c.speckle_prob > 0.0) {
     speckle_seed.assign(n, 0);
-    for (std::size_t i = 0; i < n; ++i)
-      speckle_seed[i] = uniform(seed, i, kSpeckle) < c.speckle_prob ? 1 : 0;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t i = r.begin(); i < r.end(); ++i)
+                          speckle_seed[i] = uniform(seed, i, kSpeckle) < c.speckle_prob ? 1 : 0;
+                      });
   }
 
   const double jitter_sigma = c.lateral_fwhm_px / (2.0 * std::sqrt(2.0 * std::log(2.0)));
@@ -300,7 +314,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         z *= 1.0 + c.depth_scale_bias;
         if (z > 0.0) {
           const double sigma = c.sigmaAt(z);
-          if (sigma > 0.0) z += sigma * gaussian(seed, i, kGauss1, kGauss2);
+          if (sigma > 0.0) z += sigma * pairedGaussian(seed, i);
         }
 
         if (!speckle_seed.empty() && z > 0.0) {
