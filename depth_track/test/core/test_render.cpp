@@ -151,38 +151,59 @@ TEST(Render, BadInputIsNamed) {
                std::invalid_argument);
 }
 
-// The chair room must be realistic for tracking: nearly every pixel returns, and the visible
-// surfaces constrain all six degrees of freedom of a point-to-plane registration.
-TEST(Render, ChairRoomConstrainsAllSixDof) {
+namespace {
+
+/// Weakest / strongest eigenvalue of the point-to-plane information matrix of a frame, with
+/// normals estimated from neighbouring pixels (rotation columns use p x n with p in metres).
+double constraintRatio(const DepthImage& d, const PinholeIntrinsics& K) {
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  for (int v = 1; v + 1 < K.height; v += 2)
+    for (int u = 1; u + 1 < K.width; u += 2) {
+      const float z = d.at(u, v), zr = d.at(u + 1, v), zd = d.at(u, v + 1);
+      if (z <= 0 || zr <= 0 || zd <= 0 || std::abs(zr - z) > 0.02 || std::abs(zd - z) > 0.02)
+        continue;
+      const Eigen::Vector3d p = K.backProject(u, v, z).cast<double>();
+      const Eigen::Vector3d n = (K.backProject(u + 1, v, zr).cast<double>() - p)
+                                    .cross(K.backProject(u, v + 1, zd).cast<double>() - p)
+                                    .normalized();
+      Eigen::Matrix<double, 6, 1> J;
+      J << p.cross(n), n;
+      H += J * J.transpose();
+    }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(H);
+  return es.eigenvalues()(0) / es.eigenvalues()(5);
+}
+
+}  // namespace
+
+// The scenes must be realistic for tracking: nearly every pixel returns, and the visible
+// surfaces constrain all six degrees of freedom of a point-to-plane registration. A single wall
+// gives ratio 0 (three free directions); floor, walls and furniture faces keep the weakest
+// direction within 1/200 of the strongest.
+TEST(Render, ScenesConstrainAllSixDof) {
   const PinholeIntrinsics K = l515Intrinsics();
+  Scene wall;
+  wall.name = "wall";
+  wall.addRectangle(Eigen::Vector3d(2, 0, 1), -Eigen::Vector3d::UnitX(), 20, 20, "wall");
+  EXPECT_LT(constraintRatio(renderDepth(wall, K, lookingAlongX({0, 0, 1}), DepthRange{}), K), 1e-6);
   const Scene scene = chairRoomScene();
   for (double pos : {0.0, 1.0}) {
-    const Eigen::Isometry3d T_W_C = cameraPoseOnTrack(pos, 0.0, 0.0);
-    const DepthImage d = renderDepth(scene, K, T_W_C, DepthRange{});
+    const DepthImage d = renderDepth(scene, K, cameraPoseOnTrack(pos, 0.0, 0.0), DepthRange{});
     EXPECT_GT(static_cast<double>(d.countValid()) / d.data.size(), 0.97) << "pos " << pos;
-    // Point-to-plane information matrix from normals estimated on the rendered frame.
-    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
-    for (int v = 1; v + 1 < K.height; v += 2)
-      for (int u = 1; u + 1 < K.width; u += 2) {
-        const float z = d.at(u, v), zr = d.at(u + 1, v), zd = d.at(u, v + 1);
-        if (z <= 0 || zr <= 0 || zd <= 0 || std::abs(zr - z) > 0.02 || std::abs(zd - z) > 0.02)
-          continue;
-        const Eigen::Vector3d p = K.backProject(u, v, z).cast<double>();
-        const Eigen::Vector3d n = (K.backProject(u + 1, v, zr).cast<double>() - p)
-                                      .cross(K.backProject(u, v + 1, zd).cast<double>() - p)
-                                      .normalized();
-        Eigen::Matrix<double, 6, 1> J;
-        J << p.cross(n), n;
-        H += J * J.transpose();
-      }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(H);
-    const double ratio = es.eigenvalues()(0) / es.eigenvalues()(5);
-    // A single wall would give ratio 0 (three unconstrained directions). The floor, back wall,
-    // side walls and furniture faces keep the weakest direction within 1/200 of the strongest.
-    std::printf("pos %.1f m: %zu valid, eigenvalue ratio %.4g\n", pos, d.countValid(), ratio);
-    EXPECT_GT(ratio, 1.0 / 200.0) << "pos " << pos << " eigenvalues "
-                                  << es.eigenvalues().transpose();
+    const double ratio = constraintRatio(d, K);
+    std::printf("chair room at %.1f m: eigenvalue ratio %.4g\n", pos, ratio);
+    EXPECT_GT(ratio, 1.0 / 200.0) << "pos " << pos;
   }
+  // Room3 circles the furnished room: every heading must see enough structure.
+  const RenderedRun room = makeRun("room3");
+  double worst = 1.0;
+  for (std::size_t i = 0; i < room.size() / 2; i += 30) {
+    const DepthImage d = renderDepth(room.scene, K, room.T_W_C[i], room.range);
+    EXPECT_GT(static_cast<double>(d.countValid()) / d.data.size(), 0.9) << "room3 frame " << i;
+    worst = std::min(worst, constraintRatio(d, K));
+  }
+  std::printf("room3 first lap: worst eigenvalue ratio %.4g\n", worst);
+  EXPECT_GT(worst, 1.0 / 200.0);
 }
 
 // Closed-form hits of each shape from rays whose answer is known by construction.

@@ -403,6 +403,13 @@ Scene furnishedRoomScene() {
   s.addBoxAabb(V(-2.8, 0.3, 0.0), V(-2.72, 0.38, 2.05), "door frame");
   s.addBoxAabb(V(-2.8, 1.12, 0.0), V(-2.72, 1.2, 2.05), "door frame");
   s.addBoxAabb(V(-2.8, 0.3, 2.05), V(-2.72, 1.2, 2.13), "door frame");
+  // Pieces whose side faces pin down sliding along the two long walls.
+  s.addBoxAabb(V(0.1, -2.3, 0.0), V(0.9, -1.85, 0.85), "chest of drawers");
+  s.addBoxAabb(V(1.15, 1.8, 0.0), V(1.5, 2.2, 0.55), "side table");
+  s.addCylinder(V(1.32, 2.0, 0.55), V(1.32, 2.0, 0.75), 0.05, "table lamp stem");
+  s.addCylinder(V(1.32, 2.0, 0.75), V(1.32, 2.0, 0.95), 0.13, "table lamp shade");
+  s.addCylinder(V(-1.45, 2.0, 0.0), V(-1.45, 2.0, 1.5), 0.015, "floor lamp pole");
+  s.addCylinder(V(-1.45, 2.0, 1.5), V(-1.45, 2.0, 1.8), 0.18, "floor lamp shade");
   // Odds and ends on the floor.
   s.addCylinder(V(-1.7, -1.9, 0.0), V(-1.7, -1.9, 0.35), 0.14, "waste bin");
   s.addCylinder(V(2.3, 1.9, 0.0), V(2.3, 1.9, 0.3), 0.16, "plant pot");
