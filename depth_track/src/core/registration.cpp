@@ -123,9 +123,16 @@ void moveCells(const CellCloud& current, const Eigen::Isometry3d& T_ref_cur, Mov
 // Projective association in the reference grid, then one-to-one resolution: every reference
 // cell keeps only its cheapest claimant (ties go to the lower current index), so the result does
 // not depend on evaluation order.
+// Förstner–Moonen verdicts already reached for (reference, current) pairs: later ICP iterations
+// mostly keep their pairs, and the gate barely changes with the small rotation updates.
+struct FmCache {
+  std::vector<int> ref;    ///< per current cell: the reference cell of the cached verdict, or -1
+  std::vector<char> pass;  ///< per current cell: the verdict
+};
+
 MatchResult associate(const CellCloud& reference, const CellCloud& current, const Moved& moved,
                       const PinholeIntrinsics& K, const Eigen::Matrix3d& R_ref_cur,
-                      const RegistrationConfig& config, int radius) {
+                      const RegistrationConfig& config, int radius, FmCache* fm_cache = nullptr) {
   MatchResult result;
   const std::size_t n_cur = current.cells.size();
   std::vector<int> best_ref(n_cur, -1);
@@ -195,10 +202,20 @@ MatchResult associate(const CellCloud& reference, const CellCloud& current, cons
     const int c = claim[r];
     if (c < 0) continue;
     if (gate_fm) {
-      const Eigen::Matrix3d b_reg =
-          R_ref_cur * current.cells[c].cov.cast<double>() * R_ref_cur.transpose() + eps;
-      if (forstnerMoonenFromMatrices(reference.cells[r].cov_inv_sqrt.cast<double>(), b_reg) >
-          config.fm_thresh) {
+      bool pass;
+      if (fm_cache && fm_cache->ref[c] == static_cast<int>(r)) {
+        pass = fm_cache->pass[c];
+      } else {
+        const Eigen::Matrix3d b_reg =
+            R_ref_cur * current.cells[c].cov.cast<double>() * R_ref_cur.transpose() + eps;
+        pass = forstnerMoonenFromMatrices(reference.cells[r].cov_inv_sqrt.cast<double>(), b_reg) <=
+               config.fm_thresh;
+        if (fm_cache) {
+          fm_cache->ref[c] = static_cast<int>(r);
+          fm_cache->pass[c] = pass;
+        }
+      }
+      if (!pass) {
         ++result.fm_rejected;
         continue;
       }
@@ -302,6 +319,8 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
   bool error_rose = false;
   int since_best = 0;
   Moved moved;
+  FmCache fm_cache{std::vector<int>(current.cells.size(), -1),
+                   std::vector<char>(current.cells.size(), 0)};
   for (int it = 0; it < config.max_iterations; ++it) {
     moveCells(current, T, &moved);
     // The first pass covers the prediction's error; later passes follow a re-projected estimate.
@@ -312,7 +331,7 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
         std::max(config.match.dist_min_m,
                  config.match.initial_dist_m / static_cast<double>(1 << std::min(it, 20)));
     const MatchResult m =
-        associate(reference, current, moved, intrinsics, T.rotation(), gated, radius);
+        associate(reference, current, moved, intrinsics, T.rotation(), gated, radius, &fm_cache);
     result.iterations = it + 1;
     result.candidates = m.candidates;
     result.duplicates_broken = m.duplicates_broken;
