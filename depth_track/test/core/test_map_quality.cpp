@@ -1,0 +1,96 @@
+// Map quality as numbers on the rendered XTest1_05_Chair run (known geometry): precision and
+// completeness of the map fused at tracked poses, and its voxel-set difference against the map
+// fused at ground-truth poses (ImageTest=2).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <vector>
+
+#include "depth_track/core/map/map_quality.hpp"
+#include "depth_track/core/map/mapper.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
+#include "depth_track/core/tracker.hpp"
+
+using namespace depth_track;
+
+namespace {
+
+double sceneDistance(const sim::Scene& scene, const Eigen::Vector3d& p_W) {
+  double d = std::numeric_limits<double>::infinity();
+  for (const auto& prim : scene.primitives) d = std::min(d, sim::distanceToSurface(prim, p_W));
+  return d;
+}
+
+}  // namespace
+
+TEST(MapQuality, VoxelSetDifferenceCountsWhatIsOff) {
+  std::vector<VoxelKey> a, b;
+  for (int x = 0; x < 10; ++x) {
+    a.emplace_back(x, 0, 0);
+    b.emplace_back(x, 0, 0);
+  }
+  b.emplace_back(0, 1, 0);  // next to a: matched within one voxel
+  a.emplace_back(5, 5, 5);  // far from b: "extrusion"
+  const VoxelSetDifference d = voxelSetDifference(a, b, 1);
+  EXPECT_EQ(d.both, 10u);
+  EXPECT_EQ(d.a_far, 1u);
+  EXPECT_EQ(d.b_far, 0u);
+  EXPECT_NEAR(d.jaccard, 10.0 / 12.0, 1e-12);
+  EXPECT_EQ(voxelSetDifference(a, b, 0).b_far, 1u);
+}
+
+TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
+  const sim::RenderedRun run = sim::makeRun("xtest1_05_chair");
+  const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  const auto clean = sim::NoiseConfig::forModel(sim::NoiseModel::kNone);
+  MapperConfig mc;
+  mc.range = run.range;
+  // A voxel counts as occupied after two hits (logit(0.8) = 1.39 > 0.85 per hit): sensor
+  // outliers that hit a voxel once do not make a surface.
+  mc.map.occupancy_threshold = 0.8;
+  Mapper tracked(run.intrinsics, mc, run.T_W_C.front());
+  Mapper truth(run.intrinsics, mc, run.T_W_C.front());
+  Tracker tracker(run.intrinsics, TrackerConfig{}, run.T_W_C.front());
+  std::vector<Eigen::Vector3d> surface;
+  // Every 4th frame (40 mm steps) keeps the test short.
+  for (std::size_t i = 0; i < run.size(); i += 4) {
+    const DepthImage d = run.renderFrame(i, noise, 11, 2);
+    const FrameStatus st = tracker.track(d, run.stamps_s[i]);
+    tracked.process(d, st.T_W_C);
+    truth.fuse(d, run.T_W_C[i]);
+    if (i % 20 == 0) {  // visible true surface: noise-free render, every 4th pixel
+      const DepthImage c = run.renderFrame(i, clean, 11, 2);
+      for (int v = 0; v < c.height; v += 4)
+        for (int u = 0; u < c.width; u += 4)
+          if (c.at(u, v) > 0) {
+            const Eigen::Vector3d p =
+                run.T_W_C[i] * run.intrinsics.backProject(u, v, c.at(u, v)).cast<double>();
+            if (tracked.map().region().contains(p)) surface.push_back(p);
+          }
+    }
+  }
+  const double s = mc.map.voxel_size_m;
+  auto dist = [&](const Eigen::Vector3d& p) { return sceneDistance(run.scene, p); };
+  // "Within one voxel of a true surface": the voxel is, or touches, a voxel the surface passes
+  // through, i.e. its centre lies within one edge plus half a diagonal, (1 + sqrt(3)/2) s.
+  const double tol = (1.0 + std::sqrt(3.0) / 2.0) * s;
+  const SurfaceQuality q = surfaceQuality(tracked.map(), dist, surface, tol);
+  const SurfaceQuality q_gt = surfaceQuality(truth.map(), dist, surface, tol);
+  const SurfaceQuality q_strict = surfaceQuality(tracked.map(), dist, surface, s);
+  std::printf("precision with the centre within one edge (5 mm): %.2f %%\n",
+              100 * q_strict.precision);
+  const VoxelSetDifference diff =
+      voxelSetDifference(tracked.map().occupiedKeys(), truth.map().occupiedKeys(), 1);
+  std::printf(
+      "tracked poses: precision %.2f %% completeness %.2f %% (%zu occupied); ground-truth poses: "
+      "precision %.2f %% completeness %.2f %%; tracked vs truth map: jaccard %.3f, %.2f %% of "
+      "tracked voxels > 1 voxel from the truth map, %.2f %% of truth voxels missed; %s\n",
+      100 * q.precision, 100 * q.completeness, q.occupied, 100 * q_gt.precision,
+      100 * q_gt.completeness, diff.jaccard, 100 * diff.a_far_fraction, 100 * diff.b_far_fraction,
+      tracked.summary().c_str());
+  EXPECT_GE(q.precision, 0.95);
+  EXPECT_GE(q.completeness, 0.9);
+  EXPECT_LT(diff.a_far_fraction, 0.05);
+}
