@@ -419,36 +419,84 @@ Scene furnishedRoomScene() {
   return s;
 }
 
+namespace {
+
+/// A wall along x at y = wall_y whose face points along `facing` (+1: +y, -1: -y), from x0 to
+/// x1, with door openings [x, x + door_w_m] recessed `recess_m` into the wall: leaf, both
+/// reveals and the soffit are modelled, so each door adds faces across the corridor axis.
+void addWallWithDoors(Scene& s, double wall_y, int facing, double x0, double x1, double height,
+                      std::vector<double> doors, const std::string& label) {
+  const double door_w = 0.85, door_h = 2.05, recess = 0.12;
+  const V n(0.0, facing, 0.0);
+  const double back_y = wall_y - facing * recess;  // the leaf sits behind the wall face
+  std::sort(doors.begin(), doors.end());
+  auto wallPiece = [&](double xa, double xb, double za, double zb) {
+    if (xb - xa < 1e-6 || zb - za < 1e-6) return;
+    s.addRectangle(V(0.5 * (xa + xb), wall_y, 0.5 * (za + zb)), n, 0.5 * (xb - xa), 0.5 * (zb - za),
+                   label);
+  };
+  double x = x0;
+  for (double d : doors) {
+    wallPiece(x, d, 0.0, height);
+    const double skirt_lo = std::min(wall_y, wall_y + facing * 0.015);
+    if (d - x > 0.01)
+      s.addBoxAabb(V(x, skirt_lo, 0.0), V(d, skirt_lo + 0.015, 0.1), label + " skirting board");
+    wallPiece(d, d + door_w, door_h, height);  // above the door
+    const double yc = 0.5 * (wall_y + back_y);
+    s.addRectangle(V(d + 0.5 * door_w, back_y, 0.5 * door_h), n, 0.5 * door_w, 0.5 * door_h,
+                   label + " door leaf");
+    s.addRectangle(V(d, yc, 0.5 * door_h), V::UnitX(), 0.5 * recess, 0.5 * door_h,
+                   label + " door reveal");
+    s.addRectangle(V(d + door_w, yc, 0.5 * door_h), -V::UnitX(), 0.5 * recess, 0.5 * door_h,
+                   label + " door reveal");
+    s.addRectangle(V(d + 0.5 * door_w, yc, door_h), -V::UnitZ(), 0.5 * recess, 0.5 * door_w,
+                   label + " door soffit", V::UnitX());
+    // Architrave proud of the wall around the opening.
+    const double ylo = std::min(wall_y, wall_y + facing * 0.025);
+    const double yhi = ylo + 0.025;
+    s.addBoxAabb(V(d - 0.07, ylo, 0.0), V(d, yhi, door_h + 0.07), label + " door frame");
+    s.addBoxAabb(V(d + door_w, ylo, 0.0), V(d + door_w + 0.07, yhi, door_h + 0.07),
+                 label + " door frame");
+    s.addBoxAabb(V(d, ylo, door_h), V(d + door_w, yhi, door_h + 0.07), label + " door frame");
+    x = d + door_w;
+  }
+  wallPiece(x, x1, 0.0, height);
+  const double skirt_lo = std::min(wall_y, wall_y + facing * 0.015);
+  s.addBoxAabb(V(x, skirt_lo, 0.0), V(x1, skirt_lo + 0.015, 0.1), label + " skirting board");
+}
+
+}  // namespace
+
 Scene hallwayScene() {
   Scene s;
   s.name = "hallway";
-  const double y0 = -0.8, y1 = 0.8;
-  addRoomShell(s, -1.0, 14.0, y0, y1, 2.4);
-  // Door frames (architraves) on alternating sides.
-  const double doors[4][2] = {{2.0, +1}, {5.0, -1}, {8.5, +1}, {11.0, -1}};
-  for (const auto& d : doors) {
-    const double x = d[0];
-    const double wall = d[1] > 0 ? y1 : y0;
-    const double in = wall - d[1] * 0.025;
-    const double ylo = std::min(wall, in), yhi = std::max(wall, in);
-    s.addBoxAabb(V(x - 0.07, ylo, 0.0), V(x, yhi, 2.1), "door frame");
-    s.addBoxAabb(V(x + 0.85, ylo, 0.0), V(x + 0.92, yhi, 2.1), "door frame");
-    s.addBoxAabb(V(x - 0.07, ylo, 2.03), V(x + 0.92, yhi, 2.1), "door frame");
-  }
+  const double x0 = -1.0, x1 = 14.0, y0 = -0.8, y1 = 0.8, height = 2.4;
+  const double cx = 0.5 * (x0 + x1), hx = 0.5 * (x1 - x0), hy = 0.5 * (y1 - y0);
+  s.addRectangle(V(cx, 0.0, 0.0), V::UnitZ(), hy, hx, "floor", V::UnitX());
+  s.addRectangle(V(cx, 0.0, height), -V::UnitZ(), hy, hx, "ceiling", V::UnitX());
+  s.addRectangle(V(x1, 0.0, 0.5 * height), -V::UnitX(), hy, 0.5 * height, "end wall");
+  s.addRectangle(V(x0, 0.0, 0.5 * height), V::UnitX(), hy, 0.5 * height, "front door wall");
+  // Doors recessed into both long walls, on alternating sides.
+  addWallWithDoors(s, y1, -1, x0, x1, height, {2.0, 8.5}, "left wall");
+  addWallWithDoors(s, y0, +1, x0, x1, height, {5.0, 11.0}, "right wall");
   addRadiatorY(s, y1, -1, 0.05, 3.4, 4.4, 5, "radiator");
   addRadiatorY(s, y0, +1, 0.05, 9.2, 10.2, 5, "radiator");
   s.addBoxAabb(V(6.3, y0, 0.0), V(7.2, y0 + 0.4, 0.9), "cabinet");
+  addTable(s, 2.2, 3.0, y0 + 0.02, y0 + 0.37, 0.8, 0.035, "console table");
+  s.addBoxAabb(V(5.8, y1 - 0.35, 0.0), V(7.0, y1, 0.45), "bench");
   s.addBoxAabb(V(0.5, y1 - 0.3, 0.05), V(1.3, y1, 0.07), "shoe rack shelf");
   s.addBoxAabb(V(0.5, y1 - 0.3, 0.3), V(1.3, y1, 0.32), "shoe rack shelf");
   for (int i = 0; i < 4; ++i) {
     const double x = 0.5 + 0.25 * i;
     s.addCylinder(V(x, y1, 1.7), V(x, y1 - 0.1, 1.7), 0.012, "coat hook");
   }
-  s.addBoxAabb(V(-1.0, y0, 0.0), V(14.0, y0 + 0.015, 0.1), "skirting board");
-  s.addBoxAabb(V(-1.0, y1 - 0.015, 0.0), V(14.0, y1, 0.1), "skirting board");
+  s.addBoxAabb(V(3.5, y0, 1.4), V(4.1, y0 + 0.02, 1.9), "picture");
+  s.addBoxAabb(V(10.0, y1 - 0.02, 1.35), V(10.6, y1, 1.85), "picture");
   for (double x : {1.5, 6.0, 10.5})
     s.addCylinder(V(x, 0.0, 2.4), V(x, 0.0, 2.32), 0.15, "ceiling light");
-  s.addSphere(V(12.5, 0.3, 0.18), 0.18, "ball");
+  s.addCylinder(V(11.8, 0.55, 0.0), V(11.8, 0.55, 0.3), 0.14, "plant pot");
+  s.addSphere(V(11.8, 0.55, 0.6), 0.28, "plant");
+  s.addSphere(V(12.5, -0.3, 0.18), 0.18, "ball");
   return s;
 }
 

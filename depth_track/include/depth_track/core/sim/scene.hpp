@@ -77,7 +77,8 @@ Scene chairRoomScene();
 Scene furnishedRoomScene();
 
 /// Hallway (ServoTruck Hall1): 1.6 m wide, 2.4 m high, running along +x from x = -1 m to
-/// x = 14 m, with door frames, radiators, a cabinet and a shoe rack along the walls.
+/// x = 14 m, with doors recessed 0.12 m into the walls (leaf, reveals, soffit, architraves),
+/// radiators, a cabinet, a bench, a console table and a shoe rack along the walls.
 Scene hallwayScene();
 
 }  // namespace sim
