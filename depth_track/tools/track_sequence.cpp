@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
@@ -140,6 +141,23 @@ int main(int argc, char** argv) {
   app.add_option("--gt-out", gt_out_path, "write the true trajectory here (--render only)");
   app.add_option("--status-out", status_path, "per-frame status as CSV");
   app.add_flag("--verbose", verbose, "print one line per frame");
+  // Mapping (issue 3): any of --map, --loop-closure on, --fuse-poses builds the map.
+  std::string map_path, loop_closure = "off", fuse_poses, carving = "on";
+  int cl_step = LoopClosureConfig{}.cl_step;
+  double voxel_size = MapConfig{}.voxel_size_m;
+  app.add_option("--map", map_path, "fuse the frames into a voxel map and save it here (.bt)");
+  app.add_option("--loop-closure", loop_closure, "correct the pose against the map: on | off")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
+  app.add_option("--cl-step", cl_step, "loop-closure attempt every n-th frame (CLStep)")
+      ->capture_default_str();
+  app.add_option("--fuse-poses", fuse_poses,
+                 "fuse the frames at this TUM trajectory's poses instead of tracking");
+  app.add_option("--voxel-size", voxel_size, "map voxel edge, m")->capture_default_str();
+  app.add_option("--carving", carving,
+                 "carve free space along rays (probabilistic model): on | off")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
 
   // Every tracker parameter, declared once in tracker_params.
   TrackerConfig config;
@@ -189,6 +207,24 @@ int main(int argc, char** argv) {
     Tracker tracker(K, config,
                     initial_pose.empty() ? Eigen::Isometry3d::Identity() : parsePose(initial_pose));
 
+    std::unique_ptr<Mapper> mapper;
+    Trajectory fuse_traj;
+    if (!map_path.empty() || loop_closure == "on" || !fuse_poses.empty()) {
+      MapperConfig mc;
+      mc.map.voxel_size_m = voxel_size;
+      mc.map.model = carving == "on" ? UpdateModel::kProbabilistic : UpdateModel::kHitOnly;
+      mc.loop.enabled = loop_closure == "on" && fuse_poses.empty();
+      mc.loop.cl_step = cl_step;
+      mc.range = range;
+      if (!fuse_poses.empty()) {
+        fuse_traj = readTumTrajectory(fuse_poses);
+        if (fuse_traj.empty())
+          throw std::invalid_argument("--fuse-poses " + fuse_poses + " has no poses");
+      }
+      mapper = std::make_unique<Mapper>(
+          K, mc, fuse_traj.empty() ? tracker.pose() : fuse_traj.front().T_W_C);
+    }
+
     std::FILE* status = nullptr;
     if (!status_path.empty()) {
       status = std::fopen(status_path.c_str(), "w");
@@ -208,7 +244,30 @@ int main(int argc, char** argv) {
       FrameStatus st;
       try {
         const DepthImage depth = source->frame(i);
-        st = tracker.track(depth, source->stamp(i));
+        if (!fuse_traj.empty()) {  // known poses (thesis ImageTest=2): nearest stamp within 20 ms
+          const double t = source->stamp(i);
+          const auto it = std::min_element(
+              fuse_traj.begin(), fuse_traj.end(), [t](const StampedPose& a, const StampedPose& b) {
+                return std::abs(a.stamp_s - t) < std::abs(b.stamp_s - t);
+              });
+          if (std::abs(it->stamp_s - t) > 0.02)
+            throw std::invalid_argument("no pose in --fuse-poses within 20 ms of this frame");
+          mapper->fuse(depth, it->T_W_C);
+          st.stamp_s = t;
+          st.tracked = true;
+          st.T_W_C = it->T_W_C;
+        } else {
+          st = tracker.track(depth, source->stamp(i));
+          if (mapper) {
+            const MapperFrame mf = mapper->process(depth, st.T_W_C);
+            if (mf.loop_attempted && mf.loop.accepted) {
+              tracker.correctPose(mf.T_W_C);
+              st.T_W_C = mf.T_W_C;
+            }
+            if (verbose && mf.loop_attempted)
+              std::printf("%5zu loop closure: %s\n", i, mf.loop.reason.c_str());
+          }
+        }
       } catch (const std::exception& e) {  // unreadable or wrong-size frame: flag it, go on
         ++bad_frames;
         st.stamp_s = source->stamp(i);
@@ -271,12 +330,15 @@ int main(int argc, char** argv) {
       std::printf("flagged %d frames: %s\n", count, reason.c_str());
     const CellCloud& cells = tracker.lastCells();
     std::printf(
-        "cells (last frame, cell size %d px): total=%d retained=%d pruned_invalid=%d pruned_edge=%d "
+        "cells (last frame, cell size %d px): total=%d retained=%d pruned_invalid=%d "
+        "pruned_edge=%d "
         "pruned_degenerate=%d\n",
         config.pca.cell_size, cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
         cells.stats.pruned_edge, cells.stats.pruned_degenerate);
-    std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f\n", n, tracked,
-                percentile(ms, 0.5), percentile(ms, 0.95));
+    if (mapper && !map_path.empty()) mapper->save(map_path);
+    std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked,
+                percentile(ms, 0.5), percentile(ms, 0.95),
+                mapper ? (" " + mapper->summary()).c_str() : "");
     return bad_frames > 0 && tracked == 0 ? 1 : 0;
   } catch (const std::exception& e) {
     std::cerr << "track_sequence: " << e.what() << "\n";
