@@ -204,6 +204,17 @@ TEST(Render, ScenesConstrainAllSixDof) {
   }
   std::printf("room3 first lap: worst eigenvalue ratio %.4g\n", worst);
   EXPECT_GT(worst, 1.0 / 200.0);
+  // Hall1: the far end is beyond the 4 m range, so the recessed doors, furniture and lights
+  // carry the along-hall direction.
+  const RenderedRun hall = makeRun("hall1");
+  worst = 1.0;
+  for (std::size_t i = 0; i < hall.size(); i += 100) {
+    const DepthImage d = renderDepth(hall.scene, K, hall.T_W_C[i], hall.range);
+    EXPECT_GT(static_cast<double>(d.countValid()) / d.data.size(), 0.75) << "hall1 frame " << i;
+    worst = std::min(worst, constraintRatio(d, K));
+  }
+  std::printf("hall1: worst eigenvalue ratio %.4g\n", worst);
+  EXPECT_GT(worst, 1.0 / 200.0);
 }
 
 // Closed-form hits of each shape from rays whose answer is known by construction.
