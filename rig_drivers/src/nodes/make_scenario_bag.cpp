@@ -7,14 +7,15 @@
 //                     [--compression lz4|bz2|none] [--max-frames N] [--threads N]
 //
 // Topics (stamps = simulated time from a fixed epoch, monotonic per topic):
-//   /camera/depth/image_rect      sensor_msgs/Image 16UC1, frame camera_depth_optical_frame
-//   /camera/depth/camera_info     sensor_msgs/CameraInfo
+//   /camera/image_rect            sensor_msgs/Image 16UC1, frame camera_depth_optical_frame
+//   /camera/camera_info           sensor_msgs/CameraInfo
 //   /rig_sim/camera_pose          geometry_msgs/PoseStamped, ground truth T_map_camera (optical)
 //   /tf                           map -> camera_gt (ground truth, optical frame) per exposure
 //   /tf_static                    base_link -> camera_link -> camera_depth_optical_frame (latched)
-//   /track/track_state /track/link_timing /track/raw_frames     (ServoTrack, TrackDRV)
-//   /car/carriage_sensors /car/raw_frames                        (ServoTrack, CarDRV)
-//   /truck/truck_rc /truck/raw_frames                            (ServoTruck, TruckDRV)
+//   /track_state /link_timing      (ServoTrack, TrackDRV)   the topics of the live graph
+//   /carriage_sensors              (ServoTrack, CarDRV)      (launch/servotrack.launch,
+//   /truck_rc                      (ServoTruck, TruckDRV)    servotruck.launch)
+//   /raw_frames                    rig_msgs/RawFrame of every board, both directions
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <rig_msgs/CarriageSensors.h>
@@ -89,20 +90,20 @@ class RigTopics {
     raw.board = static_cast<uint8_t>(lf.board);
     raw.outgoing = lf.outgoing;
     raw.bytes = lf.bytes;
-    bag_.write(std::string(ns) + "/raw_frames", t, raw);
+    bag_.write("/raw_frames", t, raw);
     if (lf.outgoing) return;
     protocol::StreamDecoder dec;
     const auto events = protocol::feed(dec, lf.bytes);
     for (const auto& ev : events) {
       if (ev.error != protocol::DecodeError::kNone) continue;
-      writeState(ev.frame, t, ns);
+      writeState(ev.frame, t);
     }
   }
 
   int stateMessages() const { return states_; }
 
  private:
-  void writeState(const protocol::Frame& f, const ros::Time& t, const std::string& ns) {
+  void writeState(const protocol::Frame& f, const ros::Time& t) {
     if (f.id == protocol::MsgId::kTrackState) {
       protocol::TrackStatePayload p;
       if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
@@ -121,13 +122,13 @@ class RigTopics {
       m.mode = p.mode;
       m.board_time_s = p.board_time_ms * 1e-3;
       m.frame_seq = f.seq;
-      bag_.write(ns + "/track_state", t, m);
+      bag_.write("/track_state", t, m);
       rig_msgs::LinkTiming lt;
       lt.header.stamp = t;
       lt.time1_s = m.board_time_s;
       lt.time2_s = (t - kEpoch).toSec();
       lt.time3_s = lt.time4_s = lt.time5_s = lt.time6_s = lt.round_trip_s = -1.0;
-      bag_.write(ns + "/link_timing", t, lt);
+      bag_.write("/link_timing", t, lt);
       ++states_;
     } else if (f.id == protocol::MsgId::kCarSensors) {
       protocol::CarSensorsPayload p;
@@ -146,7 +147,7 @@ class RigTopics {
       m.tf_valid = p.flags & protocol::CarSensorsPayload::kTofValid;
       m.board_time_s = p.board_time_ms * 1e-3;
       m.frame_seq = f.seq;
-      bag_.write(ns + "/carriage_sensors", t, m);
+      bag_.write("/carriage_sensors", t, m);
       ++states_;
     } else if (f.id == protocol::MsgId::kTruckRc) {
       protocol::TruckRcPayload p;
@@ -167,7 +168,7 @@ class RigTopics {
       m.signal_ok = p.flags & P::kSignalOk;
       m.board_time_s = p.board_time_ms * 1e-3;
       m.frame_seq = f.seq;
-      bag_.write(ns + "/truck_rc", t, m);
+      bag_.write("/truck_rc", t, m);
       ++states_;
     }
   }
@@ -307,11 +308,11 @@ int run(int argc, char** argv) {
       img.step = raw.width * 2;
       img.data.resize(raw.data.size() * 2);
       std::memcpy(img.data.data(), raw.data.data(), img.data.size());
-      bag.write("/camera/depth/image_rect", t, img);
+      bag.write("/camera/image_rect", t, img);
       sensor_msgs::CameraInfo info = info0;
       info.header.stamp = t;
       info.header.seq = image_seq++;
-      bag.write("/camera/depth/camera_info", t, info);
+      bag.write("/camera/camera_info", t, info);
       geometry_msgs::PoseStamped pose;
       pose.header.stamp = t;
       pose.header.frame_id = "map";

@@ -99,26 +99,25 @@ TEST(ScenarioBag, ServoTrackRunHasEveryTopicAtItsRate) {
   const std::string dir = tmpDir();
   const auto topics = scan(makeBag("RT3", dir));
   for (const char* t :
-       {"/camera/depth/image_rect", "/camera/depth/camera_info", "/rig_sim/camera_pose", "/tf",
-        "/tf_static", "/track/track_state", "/track/link_timing", "/track/raw_frames",
-        "/car/carriage_sensors", "/car/raw_frames"}) {
+       {"/camera/image_rect", "/camera/camera_info", "/rig_sim/camera_pose", "/tf", "/tf_static",
+        "/track_state", "/link_timing", "/raw_frames", "/carriage_sensors"}) {
     ASSERT_TRUE(topics.count(t)) << "missing topic " << t;
     EXPECT_TRUE(topics.at(t).monotonic) << t << " stamps go backwards";
   }
-  EXPECT_EQ(topics.at("/camera/depth/image_rect").count, kFrames);
-  EXPECT_EQ(topics.at("/camera/depth/camera_info").count, kFrames);
+  EXPECT_EQ(topics.at("/camera/image_rect").count, kFrames);
+  EXPECT_EQ(topics.at("/camera/camera_info").count, kFrames);
   EXPECT_EQ(topics.at("/rig_sim/camera_pose").count, kFrames);
   EXPECT_EQ(topics.at("/tf").count, kFrames);
   EXPECT_EQ(topics.at("/tf_static").count, 1);
   // The boards stream at 30 Hz from power-on: count = 30 Hz x recorded span, +-2 at the ends.
-  for (const char* t : {"/track/track_state", "/car/carriage_sensors"}) {
+  for (const char* t : {"/track_state", "/carriage_sensors"}) {
     const TopicStats& s = topics.at(t);
     const double span = (s.last - s.first).toSec();
     EXPECT_GT(span, kFrames / 30.0) << t;
     EXPECT_NEAR(s.count, span * 30.0 + 1.0, 2.0) << t;
   }
   // Camera frames are 1/30 s apart.
-  const TopicStats& img = topics.at("/camera/depth/image_rect");
+  const TopicStats& img = topics.at("/camera/image_rect");
   EXPECT_NEAR((img.last - img.first).toSec(), (kFrames - 1) / 30.0, 1e-3);
 }
 
@@ -142,7 +141,7 @@ TEST(ScenarioBag, EveryConnectionCarriesItsTypeForOtherReaders) {
 TEST(ScenarioBag, ImagesAreL515DepthOfTheChairRoom) {
   const std::string dir = tmpDir();
   rosbag::Bag bag(makeBag("RT1", dir), rosbag::bagmode::Read);
-  rosbag::View view(bag, rosbag::TopicQuery("/camera/depth/image_rect"));
+  rosbag::View view(bag, rosbag::TopicQuery("/camera/image_rect"));
   int n = 0;
   for (const rosbag::MessageInstance& m : view) {
     auto img = m.instantiate<sensor_msgs::Image>();
@@ -172,13 +171,13 @@ TEST(ScenarioBag, TruckRunHasRcStreamAndGroundTruth) {
   const std::string dir = tmpDir();
   const std::string path = makeBag("Chair3", dir);
   const auto topics = scan(path);
-  for (const char* t : {"/camera/depth/image_rect", "/rig_sim/camera_pose", "/truck/truck_rc",
-                        "/truck/raw_frames", "/tf_static"}) {
+  for (const char* t :
+       {"/camera/image_rect", "/rig_sim/camera_pose", "/truck_rc", "/raw_frames", "/tf_static"}) {
     ASSERT_TRUE(topics.count(t)) << "missing topic " << t;
     EXPECT_TRUE(topics.at(t).monotonic) << t;
   }
-  EXPECT_EQ(topics.at("/camera/depth/image_rect").count, kFrames);
-  EXPECT_FALSE(topics.count("/track/track_state"));
+  EXPECT_EQ(topics.at("/camera/image_rect").count, kFrames);
+  EXPECT_FALSE(topics.count("/track_state"));
 }
 
 TEST(ScenarioBag, SameScenarioGivesTheSameBag) {
