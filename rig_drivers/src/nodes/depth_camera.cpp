@@ -163,10 +163,12 @@ class V4l2Backend : public Backend {
 class SimBackend : public Backend {
  public:
   SimBackend(ros::NodeHandle& nh, const std::string& scene, const std::string& noise,
-             const std::string& pose_topic, std::uint64_t seed, const dt::DepthRange& range)
+             const std::string& pose_topic, const std::vector<double>& static_pose,
+             double pose_wait_s, std::uint64_t seed, const dt::DepthRange& range)
       : noise_(dt::sim::NoiseConfig::forModel(dt::sim::parseNoiseModel(noise))),
         seed_(seed),
-        range_(range) {
+        range_(range),
+        pose_wait_s_(pose_wait_s) {
     if (scene == "chair_room") {
       scene_ = dt::sim::chairRoomScene();
     } else if (scene == "furnished_room") {
@@ -177,16 +179,39 @@ class SimBackend : public Backend {
       throw std::runtime_error("sim backend: unknown ~scene '" + scene +
                                "' (chair_room, furnished_room, hall)");
     }
-    sub_ = nh.subscribe(pose_topic, 10, &SimBackend::onPose, this);
     pose_topic_ = pose_topic;
+    if (!static_pose.empty()) {  // fixed pose [x y z qx qy qz qw] (metres, T_W_C)
+      geometry_msgs::PoseStamped p;
+      p.pose.position.x = static_pose[0];
+      p.pose.position.y = static_pose[1];
+      p.pose.position.z = static_pose[2];
+      p.pose.orientation.x = static_pose[3];
+      p.pose.orientation.y = static_pose[4];
+      p.pose.orientation.z = static_pose[5];
+      p.pose.orientation.w = static_pose[6];
+      onPose(p);
+      if (!have_pose_) throw std::runtime_error("sim backend: ~static_pose has a zero quaternion");
+      pose_topic_ = "~static_pose";
+    } else {
+      sub_ = nh.subscribe(pose_topic, 10, &SimBackend::onPose, this);
+    }
   }
   bool grab(Grab* out, std::string* why) override {
     Eigen::Isometry3d T_W_C;
     ros::Time stamp;
+    // The simulator may start a moment after the camera: wait a little for its first pose.
+    const ros::WallTime until = ros::WallTime::now() + ros::WallDuration(pose_wait_s_);
+    while (ros::ok() && ros::WallTime::now() < until) {
+      {
+        std::lock_guard<std::mutex> l(mutex_);
+        if (have_pose_) break;
+      }
+      ros::WallDuration(0.01).sleep();
+    }
     {
       std::lock_guard<std::mutex> l(mutex_);
       if (!have_pose_) {
-        *why = "sim: waiting for the true camera pose on " + pose_topic_;
+        *why = "sim: no true camera pose on " + pose_topic_ + " (is rig_sim running?)";
         return false;
       }
       T_W_C = T_W_C_;
@@ -223,6 +248,7 @@ class SimBackend : public Backend {
   std::uint64_t index_ = 0;
   dt::DepthRange range_;
   ros::Subscriber sub_;
+  double pose_wait_s_;
   std::string pose_topic_;
   std::mutex mutex_;
   bool have_pose_ = false;
@@ -312,6 +338,10 @@ class DepthCameraNode {
     pnh.param<std::string>("noise", noise, "l515");
     pnh.param<std::string>("pose_topic", pose_topic, "/rig_sim/camera_pose");
     pnh.param("seed", seed, 1);
+    std::vector<double> static_pose;
+    double pose_wait_s;
+    pnh.param("static_pose", static_pose, static_pose);
+    pnh.param("pose_wait_s", pose_wait_s, 2.0);
     pnh.param<std::string>("tum_folder", tum_folder, "");
     pnh.param("tum_depth_scale_m", tum_scale_m, 1.0 / 5000.0);
     pnh.param("loop", loop, false);
@@ -336,6 +366,11 @@ class DepthCameraNode {
     else if (max_m / out_scale_m_ > 65535)
       problems.push_back("~max_depth_m / ~depth_scale_m exceeds the 16-bit range");
     if (backend == "tum" && tum_folder.empty()) problems.push_back("~tum_folder is required");
+    if (!static_pose.empty() && static_pose.size() != 7)
+      problems.push_back("~static_pose needs 7 numbers [x y z qx qy qz qw] (m, T_W_C)");
+    for (double v : static_pose)
+      if (!std::isfinite(v)) problems.push_back("~static_pose has a non-finite number");
+    if (!(pose_wait_s >= 0 && pose_wait_s <= 60)) problems.push_back("~pose_wait_s in [0, 60] s");
     if (backend != "v4l2" && backend != "sim" && backend != "tum")
       problems.push_back("~backend '" + backend + "' unknown (v4l2, sim, tum)");
     if (!problems.empty()) {
@@ -348,8 +383,9 @@ class DepthCameraNode {
       if (backend == "v4l2") {
         backend_ = std::make_unique<V4l2Backend>(device, K, device_scale_m, range);
       } else if (backend == "sim") {
-        backend_ = std::make_unique<SimBackend>(nh, scene, noise, pose_topic,
-                                                static_cast<std::uint64_t>(seed), range);
+        backend_ =
+            std::make_unique<SimBackend>(nh, scene, noise, pose_topic, static_pose, pose_wait_s,
+                                         static_cast<std::uint64_t>(seed), range);
       } else {
         backend_ =
             std::make_unique<TumBackend>(tum_folder, K, tum_scale_m, range, loop, file_stamps);

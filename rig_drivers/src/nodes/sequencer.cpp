@@ -4,6 +4,7 @@
 // the board acknowledged the step's sequence number as done; `frame` waits until the carriage is
 // still and triggers exactly one depth frame. Parameters: config/drivers.yaml.
 #include <ros/ros.h>
+#include <std_msgs/Bool.h>
 #include <std_msgs/String.h>
 #include <std_srvs/Trigger.h>
 
@@ -99,6 +100,17 @@ class Sequencer {
              " s; nothing was moved");
         return 1;
       }
+    // A driver serves its services before its board link is up: wait for "<driver>/connected".
+    for (const auto& step_srv : {track_step_, car_step_}) {
+      const auto slash = step_srv.rfind('/');
+      if (step_srv.empty() || slash == std::string::npos) continue;
+      const std::string topic = step_srv.substr(0, slash) + "/connected";
+      if (!waitConnected(topic)) {
+        fail("driver not connected to its board (" + topic + ") after " +
+             std::to_string(service_wait_s_) + " s; nothing was moved");
+        return 1;
+      }
+    }
     if (init_first_) {  // home the carriage (TrackDRV refuses moves until initialised)
       rig_msgs::Command init;
       init.request.command = rig_msgs::Command::Request::INIT;
@@ -173,6 +185,15 @@ class Sequencer {
     *why = states_ == 0 ? "no track state on " + track_state_topic_ + " (is track_host running?)"
                         : "carriage not still within " + std::to_string(still_timeout_s_) + " s";
     return false;
+  }
+  bool waitConnected(const std::string& topic) {
+    std::atomic<bool> up{false};
+    ros::NodeHandle nh;
+    auto sub = nh.subscribe<std_msgs::Bool>(
+        topic, 1, [&up](const std_msgs::BoolConstPtr& b) { up = b->data; });
+    const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(service_wait_s_);
+    while (ros::ok() && !up && ros::WallTime::now() < end) ros::WallDuration(0.02).sleep();
+    return up;
   }
   bool callStep(const std::string& service, rig_msgs::SequenceStep& st, std::string* why) {
     st.request.timeout_s = step_timeout_s_;

@@ -83,17 +83,6 @@ TEST(Sequencer, ModeTwoRunYieldsOneFramePerFrameStep) {
   auto s3 = nh.subscribe("sequencer/status", 10, &Listener::onStatus, &L);
   auto s4 = nh.subscribe("track_state", 100, &Listener::onState, &L);
   auto s5 = nh.subscribe("raw_frames", 1000, &Listener::onRaw, &L);
-  // The simulator's true camera pose: 0.8 m up, looking along world +x at the chair
-  // (optical z = world x, optical x = -world y, optical y = -world z).
-  auto pose_pub = nh.advertise<geometry_msgs::PoseStamped>("sim/camera_pose", 1, true);
-  geometry_msgs::PoseStamped p;
-  p.header.frame_id = "world";
-  p.pose.position.z = 0.8;
-  p.pose.orientation.w = 0.5;
-  p.pose.orientation.x = -0.5;
-  p.pose.orientation.y = 0.5;
-  p.pose.orientation.z = -0.5;
-  pose_pub.publish(p);
   ros::AsyncSpinner spinner(2);
   spinner.start();
 
