@@ -34,7 +34,7 @@ struct LoopClosureConfig {
   /// needs the older, consolidated part of the map.
   int min_model_age_frames = 60;
   /// Corrections smaller than this are below what the map resolves; they are not applied.
-  double deadband_m = 0.002;
+  double deadband_m = 0.005;
   double deadband_deg = 0.1;
   /// Gate 1, sparse model: share of pixels of the virtual image with a return, and its cells.
   double min_model_fraction = 0.25;
