@@ -35,27 +35,33 @@ void checkRaycastInput(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_
 
 // Surface depth along a pixel ray (the ray parameter is depth: d_C = (x, y, 1)). Noise makes a
 // surface a shell a few voxels thick, and the first occupied voxel is its near face, biased
-// towards the camera by about the noise; the depth returned is the middle of the first run of
-// consecutive occupied voxels, the run capped at `cap` (depth units) so that a ray grazing a
-// floor does not slide along it.
+// towards the camera by about the noise; the depth returned is the evidence-weighted centre of
+// the first run of consecutive occupied voxels, the run capped at `cap` (depth units) so that a
+// ray grazing a floor does not slide along it.
 struct HitDepth {
-  double cap = 0.0;
+  double cap = 0.0;    // longest run averaged, depth units
+  float l_occ = 0.0f;  // occupancy threshold, log-odds
   bool found = false;
-  double t_first = 0.0, t_last = 0.0;
+  double t_first = 0.0, t_last = 0.0, sum_w = 0.0, sum_wt = 0.0;
   bool operator()(const Chunk& c, int bi, int i, double t_in, double t_out) {
     const bool occ = c.occupiedAt(bi, i);
     if (!found) {
       if (!occ) return false;
       found = true;
-      t_first = t_in;
-      t_last = t_out;
-      return t_last - t_first >= cap;
+      t_first = t_last = t_in;
+    } else if (!occ || t_in > t_last + 1e-6) {
+      return true;  // the run ended (or a skipped gap)
     }
-    if (!occ || t_in > t_last + 1e-6) return true;  // the run ended (or a skipped gap)
-    t_last = std::min(t_out, t_first + cap);
+    // Weight by evidence above the threshold and by the chord length inside the run: voxels hit
+    // most often lie nearest the surface.
+    const double end = std::min(t_out, t_first + cap);
+    const double w = (c.blocks[bi]->log_odds[i] - l_occ) * (end - t_in) + 1e-12;
+    sum_w += w;
+    sum_wt += w * 0.5 * (t_in + end);
+    t_last = end;
     return t_last - t_first >= cap;
   }
-  float depth() const { return static_cast<float>(0.5 * (t_first + t_last)); }
+  float depth() const { return static_cast<float>(sum_wt / sum_w); }
 };
 
 // Depth bounds of an axis-aligned world box of edge `size` at `lo_W` in the camera frame, and the
@@ -164,6 +170,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
         const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, y, 1.0);
         HitDepth hit;
         hit.cap = run_cap_m / d.norm();
+        hit.l_occ = m.l_occ;
         m.walk<true>(o, d, t0, t1, hit, born_max);
         if (hit.found) dst[u] = hit.depth();
       }
@@ -193,6 +200,7 @@ DepthImage VoxelMap::raycastReference(const PinholeIntrinsics& K, const Eigen::I
       const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
       HitDepth hit;
       hit.cap = kRunCapVoxels * m.s / d.norm();
+      hit.l_occ = m.l_occ;
       m.walk<true, true>(o, d, range.min_m, range.max_m, hit);
       if (hit.found) out.at(u, v) = hit.depth();
     }
