@@ -141,7 +141,9 @@ TEST_P(RecoverMotion, FiveDegreesAndFiveCentimetres) {
     // Noise-free planes: within a millimetre and 0.05 degrees.
     EXPECT_LT(err.translation().norm(), 0.001) << toString(GetParam());
     EXPECT_LT(rotationAngle(err) / kDeg, 0.05) << toString(GetParam());
-    if (GetParam() == RegistrationMethod::kCellSearch) EXPECT_LE(r.fm_matches, r.matches);
+    if (GetParam() == RegistrationMethod::kCellSearch) {
+      EXPECT_LE(r.fm_matches, r.matches);
+    }
   }
 }
 
