@@ -37,7 +37,7 @@ PACKAGES=(
   libtf2-eigen-dev libtf2-geometry-msgs-dev libsensor-msgs-dev libstd-msgs-dev libstd-srvs-dev
   libgeometry-msgs-dev libnav-msgs-dev libvisualization-msgs-dev libimage-transport-dev
   libpcl-conversions-dev libpcl-ros-dev librosbag-dev librostest-dev python3-rostest
-  python3-rosbag python3-roslaunch python3-rosunit rviz
+  python3-rosbag python3-roslaunch python3-rosunit rosbash rviz
   # core libraries
   libeigen3-dev libtbb-dev liboctomap-dev octomap-tools libpng-dev libnanoflann-dev
   libcli11-dev libyaml-cpp-dev
