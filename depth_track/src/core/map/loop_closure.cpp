@@ -106,7 +106,9 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   // T_ref_cur maps the current camera into the virtual camera at the prediction.
   r.T_W_C = orthonormalized(T_W_C_pred * res.T_ref_cur);
   r.accepted = true;
-  r.reason = "accepted";
+  why << "accepted: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg << " deg, "
+      << r.matches << " pairs, residual " << 1000.0 * r.error_rms_m << " mm";
+  r.reason = why.str();
   return r;
 }
 

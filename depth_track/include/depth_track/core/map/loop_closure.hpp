@@ -54,7 +54,7 @@ struct LoopClosureConfig {
 /// Outcome of one attempt.
 struct LoopClosureResult {
   bool accepted = false;
-  std::string reason;  ///< "accepted" or why the correction was rejected
+  std::string reason;  ///< "accepted: <size>" or why the correction was rejected
   Eigen::Isometry3d T_W_C =
       Eigen::Isometry3d::Identity();  ///< corrected pose (= input if rejected)
   double correction_m = 0.0;          ///< translation of the correction, metres
