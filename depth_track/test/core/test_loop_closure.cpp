@@ -143,7 +143,7 @@ TEST(LoopClosure, RevisitRunDriftsLessWithLoopClosure) {
   const RunErrors open = driftingOdometryRun(run, frames, step, 0.01, false);
   const RunErrors closed = driftingOdometryRun(run, frames, step, 0.01, true);
   EXPECT_GT(closed.accepted, 0);
-  // Measured: end drift 42 mm open loop, 8 mm closed. The maximum error is NOT lower yet (52 mm
-  // closed vs 42 mm open: the first corrections at the revisit overshoot), so it is only printed.
+  // Measured: end drift 42 -> 16 mm, maximum error 42 -> 32 mm.
   EXPECT_LT(closed.end_m, 0.6 * open.end_m);
+  EXPECT_LT(closed.max_m, open.max_m);
 }

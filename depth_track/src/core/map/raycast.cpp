@@ -19,7 +19,7 @@ using map_detail::Chunk;
 namespace {
 
 constexpr int kTile = 4;               // pixels per tile edge for the near/far bounds
-constexpr double kRunCapVoxels = 3.0;  // longest occupied run averaged along a ray, voxels
+constexpr double kRunCapVoxels = 6.0;  // longest occupied run averaged along a ray, voxels
 
 void checkRaycastInput(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_C,
                        const DepthRange& range) {
