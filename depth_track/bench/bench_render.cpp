@@ -1,6 +1,8 @@
 // Renderer speed: ms per 640x480 frame of the chair room (about 50 primitives) from the
-// XTest1_05_Chair start pose, serial and on 2 TBB threads, plus the L515 and D435 noise passes.
+// XTest1_05_Chair start pose, serial and on 2 TBB threads, plus the L515 and D435 noise passes
+// (CPU time per frame, one core and two) and the edge distance transform alone.
 #include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
 
 #include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/sim/noise.hpp"
@@ -55,19 +57,45 @@ void BM_RenderFurnishedRoom(benchmark::State& state) {
 }
 BENCHMARK(BM_RenderFurnishedRoom)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// Noise pass on the chair room frame with its incidence (as rendered runs use it). Arg 0: model
+// (0 = L515, 1 = D435); arg 1: TBB threads (1 = one core, the cost per frame in CPU time).
 void BM_Noise(benchmark::State& state) {
-  const DepthImage clean = renderDepth(chairRoomScene(), l515Intrinsics(),
-                                       cameraPoseOnTrack(0.0, 0.0, 0.0), DepthRange{});
+  const RenderedDepth clean = renderDepthWithIncidence(
+      chairRoomScene(), l515Intrinsics(), cameraPoseOnTrack(0.0, 0.0, 0.0), DepthRange{});
   const NoiseConfig c =
       NoiseConfig::forModel(state.range(0) == 0 ? NoiseModel::kL515 : NoiseModel::kD435);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              static_cast<std::size_t>(state.range(1)));
   std::uint64_t seed = 0;
+  std::size_t valid = 0;
   for (auto _ : state) {
-    const DepthImage d = applyNoise(clean, c, ++seed, DepthRange{});
+    const DepthImage d = applyNoise(clean.depth, c, ++seed, DepthRange{}, &clean.cos_incidence);
+    valid = d.countValid();
     benchmark::DoNotOptimize(d.data.data());
   }
+  state.counters["valid_px"] = static_cast<double>(valid);
   state.SetLabel(noiseModelName(c.model));
 }
-BENCHMARK(BM_Noise)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Noise)
+    ->Args({0, 1})
+    ->Args({1, 1})
+    ->Args({0, 2})
+    ->Args({1, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+
+// Edge distance transform alone (part of every noise pass), one core.
+void BM_EdgeDistance(benchmark::State& state) {
+  const DepthImage clean = renderDepth(chairRoomScene(), l515Intrinsics(),
+                                       cameraPoseOnTrack(0.0, 0.0, 0.0), DepthRange{});
+  const NoiseConfig c = NoiseConfig::forModel(NoiseModel::kD435);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 1);
+  for (auto _ : state) {
+    const std::vector<std::uint8_t> e = edgeDistance(clean, c);
+    benchmark::DoNotOptimize(e.data());
+  }
+}
+BENCHMARK(BM_EdgeDistance)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime();
 
 }  // namespace
 
