@@ -1,5 +1,6 @@
 #include "depth_track/core/map/loop_closure.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -23,6 +24,8 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   if (!(min_model_fraction >= 0.0 && min_model_fraction <= 1.0))
     p.push_back("min_model_fraction must lie in [0, 1]");
   if (min_model_cells < 1) p.push_back("min_model_cells must be >= 1");
+  if (!(min_normal_spread >= 0.0 && min_normal_spread <= 1.0 / 3.0))
+    p.push_back("min_normal_spread must lie in [0, 1/3]");
   if (min_matches < 1) p.push_back("min_matches must be >= 1");
   if (!(max_correction_m > 0.0)) p.push_back("max_correction_m must be > 0 m");
   if (!(max_correction_deg > 0.0)) p.push_back("max_correction_deg must be > 0 deg");
@@ -67,6 +70,19 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   if (r.model_cells < config.min_model_cells) {
     why << "model too sparse: " << r.model_cells << " cells in the virtual image (< "
         << config.min_model_cells << ")";
+    r.reason = why.str();
+    return r;
+  }
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const Cell& c : model.cells) {
+    const Eigen::Vector3d n = c.normal_C.cast<double>();
+    scatter += n * n.transpose();
+  }
+  scatter /= static_cast<double>(model.cells.size());
+  r.normal_spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues()(0);
+  if (r.normal_spread < config.min_normal_spread) {
+    why << "degenerate view: normal spread " << r.normal_spread << " (< "
+        << config.min_normal_spread << "), a translation along the surfaces is unconstrained";
     r.reason = why.str();
     return r;
   }

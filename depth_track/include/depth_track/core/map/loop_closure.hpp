@@ -39,6 +39,10 @@ struct LoopClosureConfig {
   /// Gate 1, sparse model: share of pixels of the virtual image with a return, and its cells.
   double min_model_fraction = 0.25;
   int min_model_cells = 200;
+  /// Gate 1b, degenerate view: the smallest eigenvalue of the mean normal scatter
+  /// (1/n) sum n n^T of the model's cells. Below it one translation direction is barely
+  /// constrained (a single wall, a floor and a wall), and the registration slides along it.
+  double min_normal_spread = 0.03;
   /// Gate 2, too few matches: pairs used in the final iteration.
   int min_matches = 100;
   /// Gate 3, implausible correction: drift between two attempts is millimetres, so a larger
@@ -60,6 +64,7 @@ struct LoopClosureResult {
   double correction_m = 0.0;          ///< translation of the correction, metres
   double correction_deg = 0.0;        ///< rotation of the correction, degrees
   double model_fraction = 0.0;        ///< share of virtual pixels with a return
+  double normal_spread = 0.0;         ///< smallest eigenvalue of the model's mean normal scatter
   int model_cells = 0, current_cells = 0, matches = 0;
   double error_rms_m = 0.0;
   double ms_raycast = 0.0, ms_reduce = 0.0, ms_register = 0.0;
