@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -60,13 +62,6 @@ inline double gaussian(std::uint64_t seed, std::size_t idx, Stream a, Stream b) 
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * M_PI * u2);
 }
 
-bool isJump(float a, float b, const NoiseConfig& c) {
-  if ((a > 0.0f) != (b > 0.0f)) return true;
-  if (a <= 0.0f) return false;
-  const double near = std::min(a, b);
-  return std::abs(static_cast<double>(a) - b) > std::max(c.edge_jump_min_m, c.edge_jump_rel * near);
-}
-
 void checkFrame(const DepthImage& d) {
   if (d.width <= 0 || d.height <= 0 ||
       d.data.size() != static_cast<std::size_t>(d.width) * d.height) {
@@ -75,6 +70,128 @@ void checkFrame(const DepthImage& d) {
       << " values; expected width * height > 0";
     throw DepthInputError(s.str());
   }
+}
+
+/// Discontinuity test between two neighbouring depths (the config's edge rule), written without
+/// branches so row loops vectorise; same arithmetic, hence the same verdict, as the plain rule
+/// (NaN and non-positive depths count as "no return").
+inline bool isJump(float a, float b, double jump_min_m, double jump_rel) {
+  const bool pa = a > 0.0f, pb = b > 0.0f;
+  const double near = std::min(a, b);
+  const bool big = std::abs(static_cast<double>(a) - b) > std::max(jump_min_m, jump_rel * near);
+  return (pa != pb) | (pa & pb & big);
+}
+
+bool isJump(float a, float b, const NoiseConfig& c) {
+  return isJump(a, b, c.edge_jump_min_m, c.edge_jump_rel);
+}
+
+/// std::round (halves away from zero) without the libm call: truncation and the exact
+/// fractional part x - trunc(x) decide the same integer for every finite x.
+inline double roundHalfAway(double x) {
+  if (!(std::abs(x) < 4503599627370496.0)) return std::round(x);  // already integral, or NaN
+  const double t = static_cast<double>(static_cast<std::int64_t>(x));
+  const double f = x - t;  // exact: t holds x's integer bits
+  // Branch-free (the fraction is random, a branch would mispredict half the time); copysign
+  // restores std::round's sign of a zero result.
+  const double up = f >= 0.5 ? 1.0 : 0.0, down = f <= -0.5 ? 1.0 : 0.0;
+  return std::copysign(t + up - down, x);
+}
+
+inline std::uint8_t plusOneSat(std::uint8_t x) {
+  return static_cast<std::uint8_t>(std::min<std::uint8_t>(x, 254) + 1);
+}
+
+// Row kernels: plain loops over restrict pointers with the count passed by value, so the
+// compiler vectorises them (through a captured reference the byte stores could alias the count).
+
+/// o[u] |= s[u], u in [0, n).
+inline void orRow(std::uint8_t* __restrict o, const std::uint8_t* __restrict s, int n) {
+  for (int u = 0; u < n; ++u) o[u] |= s[u];
+}
+
+/// x[u] = min(x[u], p[u] + 1) saturating at 255, u in [0, n).
+inline void relaxRow(std::uint8_t* __restrict x, const std::uint8_t* __restrict p, int n) {
+  for (int u = 0; u < n; ++u) x[u] = std::min(x[u], plusOneSat(p[u]));
+}
+
+/// o[u] = min(o[u], s[u]), u in [0, n).
+inline void minRow(std::int32_t* __restrict o, const std::int32_t* __restrict s, int n) {
+  for (int u = 0; u < n; ++u) o[u] = std::min(o[u], s[u]);
+}
+
+/// o[u] = 1 where a[u] and b[u] are separated by a discontinuity, else 0, u in [0, n).
+inline void jumpRow(std::uint8_t* __restrict o, const float* __restrict a,
+                    const float* __restrict b, int n, double jump_min_m, double jump_rel) {
+  for (int u = 0; u < n; ++u) o[u] = isJump(a[u], b[u], jump_min_m, jump_rel);
+}
+
+/// o[u] = 0 where o[u] flags a discontinuity, 255 elsewhere, u in [0, n).
+inline void markRow(std::uint8_t* __restrict o, int n) {
+  for (int u = 0; u < n; ++u) o[u] = o[u] ? 0 : 255;
+}
+
+/// Dilates a 0/1 mask by a (2r+1)^2 square clipped at the image border: out = 1 where any mask
+/// pixel lies within chessboard distance r. Separable (rows, then columns).
+std::vector<std::uint8_t> dilateSquare(const std::vector<std::uint8_t>& mask, int w, int h, int r) {
+  std::vector<std::uint8_t> rows(mask.size(), 0), out(mask.size(), 0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rr) {
+    for (int v = rr.begin(); v < rr.end(); ++v) {
+      const std::uint8_t* s = &mask[static_cast<std::size_t>(v) * w];
+      std::uint8_t* o = &rows[static_cast<std::size_t>(v) * w];
+      for (int du = -r; du <= r; ++du) {
+        const int lo = std::max(0, -du), hi = std::min(w, w - du);
+        if (hi > lo) orRow(o + lo, s + lo + du, hi - lo);
+      }
+    }
+  });
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rr) {
+    for (int v = rr.begin(); v < rr.end(); ++v)
+      for (int vv = std::max(0, v - r); vv <= std::min(h - 1, v + r); ++vv)
+        orRow(&out[static_cast<std::size_t>(v) * w], &rows[static_cast<std::size_t>(vv) * w], w);
+  });
+  return out;
+}
+
+/// Order-preserving integer key of a depth for "nearest valid return" minima: the bit pattern
+/// of a positive float (which orders like the float), INT32_MAX (a NaN pattern, above every
+/// positive float) for no return.
+inline std::int32_t depthKey(float q) {
+  std::int32_t k;
+  std::memcpy(&k, &q, sizeof k);
+  return q > 0.0f ? k : std::numeric_limits<std::int32_t>::max();
+}
+
+inline float keyDepth(std::int32_t k) {
+  if (k == std::numeric_limits<std::int32_t>::max()) return 0.0f;
+  float q;
+  std::memcpy(&q, &k, sizeof q);
+  return q;
+}
+
+/// k[u] = depthKey(q[u]), u in [0, n).
+inline void keyRow(std::int32_t* __restrict k, const float* __restrict q, int n) {
+  for (int u = 0; u < n; ++u) k[u] = depthKey(q[u]);
+}
+
+/// Per pixel, the key of the nearest (smallest positive) depth among its row neighbours within
+/// r pixels, clipped at the image border.
+std::vector<std::int32_t> rowMinKeys(const DepthImage& d, int r) {
+  const int w = d.width, h = d.height;
+  std::vector<std::int32_t> out(d.data.size(), std::numeric_limits<std::int32_t>::max());
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rr) {
+    std::vector<std::int32_t> keys(w);
+    for (int v = rr.begin(); v < rr.end(); ++v) {
+      const float* s = &d.data[static_cast<std::size_t>(v) * w];
+      keyRow(keys.data(), s, w);
+      std::int32_t* o = &out[static_cast<std::size_t>(v) * w];
+      for (int du = -r; du <= r; ++du) {
+        const int lo = std::max(0, -du), hi = std::min(w, w - du);
+        if (hi > lo) minRow(o + lo, keys.data() + lo + du, hi - lo);
+      }
+    }
+  });
+  return out;
 }
 
 }  // namespace
@@ -179,43 +296,57 @@ std::vector<std::string> NoiseConfig::validate() const {
 std::vector<std::uint8_t> edgeDistance(const DepthImage& depth, const NoiseConfig& c) {
   checkFrame(depth);
   const int w = depth.width, h = depth.height;
-  std::vector<std::uint8_t> d(static_cast<std::size_t>(w) * h, 255);
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& r) {
-    for (int v = r.begin(); v < r.end(); ++v)
-      for (int u = 0; u < w; ++u) {
-        const float z = depth.at(u, v);
-        if ((u > 0 && isJump(z, depth.at(u - 1, v), c)) ||
-            (u + 1 < w && isJump(z, depth.at(u + 1, v), c)) ||
-            (v > 0 && isJump(z, depth.at(u, v - 1), c)) ||
-            (v + 1 < h && isJump(z, depth.at(u, v + 1), c)))
-          d[static_cast<std::size_t>(v) * w + u] = 0;
-      }
+  const double jmin = c.edge_jump_min_m, jrel = c.edge_jump_rel;
+  // Each 4-neighbour pair is judged once: vjump row v = jumps between rows v and v + 1.
+  std::vector<std::uint8_t> vjump(static_cast<std::size_t>(w) * std::max(h - 1, 0));
+  tbb::parallel_for(tbb::blocked_range<int>(0, h - 1, 16), [&](const tbb::blocked_range<int>& r) {
+    for (int v = r.begin(); v < r.end(); ++v) {
+      const float* a = &depth.data[static_cast<std::size_t>(v) * w];
+      jumpRow(&vjump[static_cast<std::size_t>(v) * w], a, a + w, w, jmin, jrel);
+    }
   });
-  // Two-pass chessboard distance transform.
-  auto at = [&](int u, int v) -> std::uint8_t& { return d[static_cast<std::size_t>(v) * w + u]; };
-  auto relax = [](std::uint8_t& x, std::uint8_t n) {
-    if (n < 255 && n + 1 < x) x = static_cast<std::uint8_t>(n + 1);
-  };
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      std::uint8_t& x = at(u, v);
-      if (u > 0) relax(x, at(u - 1, v));
-      if (v > 0) {
-        relax(x, at(u, v - 1));
-        if (u > 0) relax(x, at(u - 1, v - 1));
-        if (u + 1 < w) relax(x, at(u + 1, v - 1));
+  std::vector<std::uint8_t> d(static_cast<std::size_t>(w) * h);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& r) {
+    std::vector<std::uint8_t> hjump(w, 0);  // hjump[u]: jump between u and u + 1
+    for (int v = r.begin(); v < r.end(); ++v) {
+      const float* z = &depth.data[static_cast<std::size_t>(v) * w];
+      std::uint8_t* o = &d[static_cast<std::size_t>(v) * w];
+      std::fill(o, o + w, 0);
+      if (w > 1) {
+        jumpRow(hjump.data(), z, z + 1, w - 1, jmin, jrel);
+        orRow(o, hjump.data(), w - 1);
+        orRow(o + 1, hjump.data(), w - 1);
       }
+      if (v > 0) orRow(o, &vjump[static_cast<std::size_t>(v - 1) * w], w);
+      if (v + 1 < h) orRow(o, &vjump[static_cast<std::size_t>(v) * w], w);
+      markRow(o, w);
     }
-  for (int v = h - 1; v >= 0; --v)
-    for (int u = w - 1; u >= 0; --u) {
-      std::uint8_t& x = at(u, v);
-      if (u + 1 < w) relax(x, at(u + 1, v));
-      if (v + 1 < h) {
-        relax(x, at(u, v + 1));
-        if (u + 1 < w) relax(x, at(u + 1, v + 1));
-        if (u > 0) relax(x, at(u - 1, v + 1));
-      }
+  });
+  // Two-pass chessboard distance transform (8-neighbour chamfer, exact for this metric). Every
+  // step is x = min(x, neighbour + 1) saturating at 255, so the order of the steps inside a pass
+  // does not matter as long as each row is final before the next one reads it: the three
+  // neighbours of the previous row are applied to the whole row at once (vectorised), then the
+  // in-row sweep.
+  for (int v = 0; v < h; ++v) {
+    std::uint8_t* x = &d[static_cast<std::size_t>(v) * w];
+    if (v > 0) {
+      const std::uint8_t* p = x - w;
+      relaxRow(x, p, w);
+      relaxRow(x + 1, p, w - 1);
+      relaxRow(x, p + 1, w - 1);
     }
+    for (int u = 1; u < w; ++u) x[u] = std::min(x[u], plusOneSat(x[u - 1]));
+  }
+  for (int v = h - 1; v >= 0; --v) {
+    std::uint8_t* x = &d[static_cast<std::size_t>(v) * w];
+    if (v + 1 < h) {
+      const std::uint8_t* p = x + w;
+      relaxRow(x, p, w);
+      relaxRow(x + 1, p, w - 1);
+      relaxRow(x, p + 1, w - 1);
+    }
+    for (int u = w - 2; u >= 0; --u) x[u] = std::min(x[u], plusOneSat(x[u + 1]));
+  }
   return d;
 }
 
@@ -247,24 +378,34 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
   const std::size_t n = static_cast<std::size_t>(w) * h;
   seed = mix64(seed ^ 0x5DEECE66Dull);  // decorrelates neighbouring user seeds
   const std::vector<std::uint8_t> edge = edgeDistance(clean, c);
-
-  // Speckle seeds, dilated into blobs below.
-  std::vector<std::uint8_t> speckle_seed;
-  if (c.speckle_prob > 0.0) {
-    speckle_seed.assign(n, 0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                      [&](const tbb::blocked_range<std::size_t>& r) {
-                        for (std::size_t i = r.begin(); i < r.end(); ++i)
-                          speckle_seed[i] = uniform(seed, i, kSpeckle) < c.speckle_prob ? 1 : 0;
-                      });
-  }
-
   const double jitter_sigma = c.lateral_fwhm_px / (2.0 * std::sqrt(2.0 * std::log(2.0)));
   const int jmax = c.max_jitter_px;
   const int band = c.edge_band_px;
 
+  // Speckle: a pixel is lost when a blob seed lies within speckle_radius_px (chessboard), i.e.
+  // the seed mask dilated by the blob square (instead of scanning the square at every pixel).
+  std::vector<std::uint8_t> speckle;
+  if (c.speckle_prob > 0.0) {
+    std::vector<std::uint8_t> seeds(n);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<std::size_t>& r) {
+                        for (std::size_t i = r.begin(); i < r.end(); ++i)
+                          seeds[i] = uniform(seed, i, kSpeckle) < c.speckle_prob ? 1 : 0;
+                      });
+    speckle = dilateSquare(seeds, w, h, c.speckle_radius_px);
+  }
+  // Edge bleeding needs the nearest return in the band square around a pixel: minima along rows
+  // here (whole frame, vectorised), along the column only at the pixels that bleed.
+  std::vector<std::int32_t> row_min;
+  if (c.edge_bleed_prob > 0.0) row_min = rowMinKeys(clean, band);
+
   DepthImage out(w, h);
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& r) {
+    // The Gaussian depth noise of pixels 2k and 2k+1 shares one Box-Muller pair: its radius and
+    // angle are computed once and kept for the partner (which may start the next row).
+    std::size_t cached_pair = static_cast<std::size_t>(-1);
+    double radius = 0.0, angle = 0.0, cos_a = 0.0, sin_a = 0.0;
+    bool have_cos = false, have_sin = false;
     for (int v = r.begin(); v < r.end(); ++v)
       for (int u = 0; u < w; ++u) {
         const std::size_t i = static_cast<std::size_t>(v) * w + u;
@@ -275,7 +416,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         // pixels within reach of an edge report a neighbour's depth (ragged, eroded edges).
         if (jitter_sigma > 0.0 && e <= jmax) {
           auto offset = [&](Stream a, Stream b) {
-            const double o = std::round(jitter_sigma * gaussian(seed, i, a, b));
+            const double o = roundHalfAway(jitter_sigma * gaussian(seed, i, a, b));
             return static_cast<int>(
                 std::clamp(o, -static_cast<double>(jmax), static_cast<double>(jmax)));
           };
@@ -286,14 +427,10 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
 
         // Stereo edge fattening: the background near an edge takes the foreground depth.
         if (c.edge_bleed_prob > 0.0 && e <= band && uniform(seed, i, kBleed) < c.edge_bleed_prob) {
-          float fg = 0.0f;
-          for (int dv = -band; dv <= band; ++dv)
-            for (int du = -band; du <= band; ++du) {
-              const int uu = u + du, vv = v + dv;
-              if (uu < 0 || vv < 0 || uu >= w || vv >= h) continue;
-              const float q = clean.at(uu, vv);
-              if (q > 0.0f && (fg == 0.0f || q < fg)) fg = q;
-            }
+          std::int32_t key = std::numeric_limits<std::int32_t>::max();
+          for (int vv = std::max(0, v - band); vv <= std::min(h - 1, v + band); ++vv)
+            key = std::min(key, row_min[static_cast<std::size_t>(vv) * w + u]);
+          const float fg = keyDepth(key);
           if (fg > 0.0f && (z <= 0.0 || isJump(static_cast<float>(z), fg, c))) z = fg;
         }
 
@@ -314,26 +451,34 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         z *= 1.0 + c.depth_scale_bias;
         if (z > 0.0) {
           const double sigma = c.sigmaAt(z);
-          if (sigma > 0.0) z += sigma * pairedGaussian(seed, i);
+          if (sigma > 0.0) {
+            // Box-Muller on the uniforms of pair i / 2: cos to the even pixel, sin to the odd.
+            const std::size_t pair = i >> 1;
+            if (pair != cached_pair) {
+              cached_pair = pair;
+              const double u1 = uniform(seed, pair, kGauss1), u2 = uniform(seed, pair, kGauss2);
+              radius = std::sqrt(-2.0 * std::log(u1));
+              angle = 2.0 * M_PI * u2;
+              have_cos = have_sin = false;
+            }
+            double g;
+            if (i & 1) {
+              if (!have_sin) sin_a = std::sin(angle), have_sin = true;
+              g = radius * sin_a;
+            } else {
+              if (!have_cos) cos_a = std::cos(angle), have_cos = true;
+              g = radius * cos_a;
+            }
+            z += sigma * g;
+          }
         }
 
-        if (!speckle_seed.empty() && z > 0.0) {
-          const int rr = c.speckle_radius_px;
-          for (int dv = -rr; dv <= rr && z > 0.0; ++dv)
-            for (int du = -rr; du <= rr; ++du) {
-              const int uu = u + du, vv = v + dv;
-              if (uu < 0 || vv < 0 || uu >= w || vv >= h) continue;
-              if (speckle_seed[static_cast<std::size_t>(vv) * w + uu]) {
-                z = 0.0;
-                break;
-              }
-            }
-        }
+        if (!speckle.empty() && speckle[i] && z > 0.0) z = 0.0;
         if (c.random_dropout_prob > 0.0 && uniform(seed, i, kRandomDrop) < c.random_dropout_prob)
           z = 0.0;
 
         if (!(z >= range.min_m && z <= range.max_m)) z = 0.0;
-        if (z > 0.0 && c.quantum_m > 0.0) z = std::round(z / c.quantum_m) * c.quantum_m;
+        if (z > 0.0 && c.quantum_m > 0.0) z = roundHalfAway(z / c.quantum_m) * c.quantum_m;
         out.data[i] = static_cast<float>(z);
       }
   });
