@@ -5,15 +5,16 @@
 #include <ros/ros.h>
 #include <std_msgs/Bool.h>
 
+#include <cmath>
 #include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
 
 #include "rig_drivers/protocol/serial_port_link.hpp"
+#include "rig_drivers/ros/conversions.hpp"
 #include "rig_msgs/Command.h"
 #include "rig_msgs/Parameters.h"
-#include "rig_msgs/RawFrame.h"
 #include "rig_msgs/SequenceStep.h"
 #include "rig_msgs/SetMode.h"
 #include "rig_msgs/Version.h"
@@ -118,14 +119,8 @@ class BoardHost {
   void onFrame(const protocol::Frame& f, const std::vector<std::uint8_t>& wire, bool outgoing) {
     const ros::Time now = ros::Time::now();
     if (publish_raw_) {
-      rig_msgs::RawFrame raw;
-      raw.header.stamp = now;
-      raw.header.frame_id = frame_id_;
-      raw.port = config_.serial.device;
-      raw.board = static_cast<std::uint8_t>(f.board);
-      raw.outgoing = outgoing;
-      raw.bytes = wire;
-      raw_pub_.publish(raw);
+      raw_pub_.publish(
+          conv::rawFrameMsg(now, frame_id_, config_.serial.device, f.board, outgoing, wire));
     }
     if (!outgoing && publish_state_) publish_state_(f, now);
   }
@@ -253,6 +248,29 @@ inline void fillStepResult(const CommandResult& r, rig_msgs::SequenceStep::Respo
   res.message = r.message;
   res.seq = r.seq;
   res.status = static_cast<std::uint8_t>(r.status);
+}
+
+/// Executes a TARGET_WAIT step (a board-side wait of a mode 2 sequence) and fills `res`; false
+/// when the step was rejected before reaching the board (wait_s out of range).
+inline bool runWaitStep(BoardLink& link, const rig_msgs::SequenceStep::Request& req,
+                        rig_msgs::SequenceStep::Response& res, double timeout_s) {
+  if (!(req.wait_s >= 0 && req.wait_s < 3600)) {
+    res.success = false;
+    res.message = "wait step rejected: wait_s must be in [0, 3600) s";
+    return false;
+  }
+  protocol::CmdWait w;
+  w.wait_ms = static_cast<std::uint32_t>(std::lround(req.wait_s * 1e3));
+  fillStepResult(link.send(w, timeout_s + req.wait_s, true, req.seq), res);
+  return true;
+}
+
+/// Answers a step whose target this board does not execute (`accepted`: the targets it does).
+inline void rejectStepTarget(const std::string& program, const std::string& accepted,
+                             std::uint8_t target, rig_msgs::SequenceStep::Response& res) {
+  res.success = false;
+  res.message =
+      program + " executes " + accepted + " steps only (got target " + std::to_string(target) + ")";
 }
 
 }  // namespace rig_drivers

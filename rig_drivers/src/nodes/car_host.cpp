@@ -8,6 +8,7 @@
 #include <cmath>
 
 #include "board_host.hpp"
+#include "rig_drivers/ros/conversions.hpp"
 
 using namespace rig_drivers;
 
@@ -19,22 +20,8 @@ int main(int argc, char** argv) {
   std::atomic<double> pitch_deg{0.0}, yaw_deg{0.0}, tof_m{0.0};
 
   auto publish_state = [&](const protocol::Frame& f, const ros::Time& stamp) {
-    protocol::CarSensorsPayload p;
-    if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return false;
     rig_msgs::CarriageSensors m;
-    m.header.stamp = stamp;
-    m.header.frame_id = host.frameId();
-    m.pitch_dem_deg = p.pitch_dem_cdeg * 0.01f;
-    m.pitch_deg = p.pitch_cdeg * 0.01f;
-    m.yaw_dem_deg = p.yaw_dem_cdeg * 0.01f;
-    m.yaw_deg = p.yaw_cdeg * 0.01f;
-    m.acc_x_g = p.acc_x_mg * 1e-3f;
-    m.acc_y_g = p.acc_y_mg * 1e-3f;
-    m.acc_z_g = p.acc_z_mg * 1e-3f;
-    m.tf_pos_m = p.tof_mm * 1e-3f;
-    m.tf_valid = p.flags & protocol::CarSensorsPayload::kTofValid;
-    m.board_time_s = p.board_time_ms * 1e-3;
-    m.frame_seq = f.seq;
+    if (!conv::fromFrame(f, stamp, host.frameId(), m)) return false;
     pitch_deg = m.pitch_deg;
     yaw_deg = m.yaw_deg;
     tof_m = m.tf_pos_m;
@@ -59,18 +46,9 @@ int main(int argc, char** argv) {
       s.flags = req.relative ? protocol::CmdServo::kRelative : 0;
       fillStepResult(link.send(s, timeout_s, true, req.seq), res);
     } else if (req.target == Req::TARGET_WAIT) {
-      if (!(req.wait_s >= 0 && req.wait_s < 3600)) {
-        res.success = false;
-        res.message = "wait step rejected: wait_s must be in [0, 3600) s";
-        return;
-      }
-      protocol::CmdWait w;
-      w.wait_ms = static_cast<std::uint32_t>(std::lround(req.wait_s * 1e3));
-      fillStepResult(link.send(w, timeout_s + req.wait_s, true, req.seq), res);
+      if (!runWaitStep(link, req, res, timeout_s)) return;
     } else {
-      res.success = false;
-      res.message = "car_host executes TARGET_GIMBAL and TARGET_WAIT steps only (got target " +
-                    std::to_string(req.target) + ")";
+      rejectStepTarget("car_host", "TARGET_GIMBAL and TARGET_WAIT", req.target, res);
       return;
     }
     res.pitch_deg = pitch_deg;

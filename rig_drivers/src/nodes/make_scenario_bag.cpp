@@ -18,11 +18,6 @@
 //   /raw_frames                    rig_msgs/RawFrame of every board, both directions
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
-#include <rig_msgs/CarriageSensors.h>
-#include <rig_msgs/LinkTiming.h>
-#include <rig_msgs/RawFrame.h>
-#include <rig_msgs/TrackState.h>
-#include <rig_msgs/TruckRc.h>
 #include <rosbag/bag.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -38,6 +33,7 @@
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/sim/scene.hpp"
 #include "rig_drivers/protocol/rig_sim.hpp"
+#include "rig_drivers/ros/conversions.hpp"
 
 using namespace rig_drivers;
 namespace dsim = depth_track::sim;
@@ -83,13 +79,9 @@ class RigTopics {
     const char* ns = lf.board == protocol::BoardId::kTrack ? "/track"
                      : lf.board == protocol::BoardId::kCar ? "/car"
                                                            : "/truck";
-    rig_msgs::RawFrame raw;
-    raw.header.stamp = t;
+    rig_msgs::RawFrame raw =
+        conv::rawFrameMsg(t, "", std::string("sim:") + (ns + 1), lf.board, lf.outgoing, lf.bytes);
     raw.header.seq = raw_seq_++;
-    raw.port = std::string("sim:") + (ns + 1);
-    raw.board = static_cast<uint8_t>(lf.board);
-    raw.outgoing = lf.outgoing;
-    raw.bytes = lf.bytes;
     bag_.write("/raw_frames", t, raw);
     if (lf.outgoing) return;
     protocol::StreamDecoder dec;
@@ -104,73 +96,20 @@ class RigTopics {
 
  private:
   void writeState(const protocol::Frame& f, const ros::Time& t) {
-    if (f.id == protocol::MsgId::kTrackState) {
-      protocol::TrackStatePayload p;
-      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
-      using P = protocol::TrackStatePayload;
-      rig_msgs::TrackState m;
-      m.header.stamp = t;
-      m.header.frame_id = "base_link";
-      m.track_pos_m = p.pos_um * 1e-6;
-      m.track_steps = p.pos_steps;
-      m.velocity_mps = p.vel_um_s * 1e-6;
-      m.near_end_sensor = p.flags & P::kNearSensor;
-      m.far_end_sensor = p.flags & P::kFarSensor;
-      m.estop = p.flags & P::kEStopFlag;
-      m.homed = p.flags & P::kHomed;
-      m.state = static_cast<uint8_t>(p.state);
-      m.mode = p.mode;
-      m.board_time_s = p.board_time_ms * 1e-3;
-      m.frame_seq = f.seq;
-      bag_.write("/track_state", t, m);
-      rig_msgs::LinkTiming lt;
-      lt.header.stamp = t;
-      lt.time1_s = m.board_time_s;
-      lt.time2_s = (t - kEpoch).toSec();
-      lt.time3_s = lt.time4_s = lt.time5_s = lt.time6_s = lt.round_trip_s = -1.0;
-      bag_.write("/link_timing", t, lt);
-      ++states_;
-    } else if (f.id == protocol::MsgId::kCarSensors) {
-      protocol::CarSensorsPayload p;
-      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
-      rig_msgs::CarriageSensors m;
-      m.header.stamp = t;
-      m.header.frame_id = "base_link";
-      m.pitch_dem_deg = p.pitch_dem_cdeg * 0.01f;
-      m.pitch_deg = p.pitch_cdeg * 0.01f;
-      m.yaw_dem_deg = p.yaw_dem_cdeg * 0.01f;
-      m.yaw_deg = p.yaw_cdeg * 0.01f;
-      m.acc_x_g = p.acc_x_mg * 1e-3f;
-      m.acc_y_g = p.acc_y_mg * 1e-3f;
-      m.acc_z_g = p.acc_z_mg * 1e-3f;
-      m.tf_pos_m = p.tof_mm * 1e-3f;
-      m.tf_valid = p.flags & protocol::CarSensorsPayload::kTofValid;
-      m.board_time_s = p.board_time_ms * 1e-3;
-      m.frame_seq = f.seq;
-      bag_.write("/carriage_sensors", t, m);
-      ++states_;
-    } else if (f.id == protocol::MsgId::kTruckRc) {
-      protocol::TruckRcPayload p;
-      if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return;
-      using P = protocol::TruckRcPayload;
-      rig_msgs::TruckRc m;
-      m.header.stamp = t;
-      m.header.frame_id = "base_link";
-      m.ch2_us = p.ch2_us;
-      m.ch3_us = p.ch3_us;
-      m.ch5_us = p.ch5_us;
-      m.ch7_us = p.ch7_us;
-      m.steering = p.steering_permille * 1e-3f;
-      m.speed_signal = p.speed_permille * 1e-3f;
-      m.speed_mps = p.speed_mm_s * 1e-3f;
-      m.running = p.flags & P::kRunning;
-      m.recording = p.flags & P::kRecording;
-      m.signal_ok = p.flags & P::kSignalOk;
-      m.board_time_s = p.board_time_ms * 1e-3;
-      m.frame_seq = f.seq;
-      bag_.write("/truck_rc", t, m);
-      ++states_;
+    rig_msgs::TrackState track;
+    rig_msgs::CarriageSensors car;
+    rig_msgs::TruckRc truck;
+    if (conv::fromFrame(f, t, "base_link", track)) {
+      bag_.write("/track_state", t, track);
+      bag_.write("/link_timing", t, conv::trackLinkTiming(track, (t - kEpoch).toSec()));
+    } else if (conv::fromFrame(f, t, "base_link", car)) {
+      bag_.write("/carriage_sensors", t, car);
+    } else if (conv::fromFrame(f, t, "base_link", truck)) {
+      bag_.write("/truck_rc", t, truck);
+    } else {
+      return;  // acks, version and parameter replies: in /raw_frames only
     }
+    ++states_;
   }
 
   rosbag::Bag& bag_;

@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "board_host.hpp"
+#include "rig_drivers/ros/conversions.hpp"
 
 using namespace rig_drivers;
 
@@ -22,31 +23,11 @@ int main(int argc, char** argv) {
   std::atomic<double> pos_m{0.0};
 
   auto publish_state = [&](const protocol::Frame& f, const ros::Time& stamp) {
-    protocol::TrackStatePayload p;
-    if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return false;
-    using P = protocol::TrackStatePayload;
     rig_msgs::TrackState m;
-    m.header.stamp = stamp;
-    m.header.frame_id = host.frameId();
-    m.track_pos_m = p.pos_um * 1e-6;
-    m.track_steps = p.pos_steps;
-    m.velocity_mps = p.vel_um_s * 1e-6;
-    m.near_end_sensor = p.flags & P::kNearSensor;
-    m.far_end_sensor = p.flags & P::kFarSensor;
-    m.estop = p.flags & P::kEStopFlag;
-    m.homed = p.flags & P::kHomed;
-    m.state = static_cast<std::uint8_t>(p.state);
-    m.mode = p.mode;
-    m.board_time_s = p.board_time_ms * 1e-3;
-    m.frame_seq = f.seq;
+    if (!conv::fromFrame(f, stamp, host.frameId(), m)) return false;
     pos_m = m.track_pos_m;
     state_pub.publish(m);
-    rig_msgs::LinkTiming t;
-    t.header.stamp = stamp;
-    t.time1_s = m.board_time_s;
-    t.time2_s = (ros::WallTime::now() - host_start).toSec();
-    t.time3_s = t.time4_s = t.time5_s = t.time6_s = t.round_trip_s = -1.0;
-    timing_pub.publish(t);
+    timing_pub.publish(conv::trackLinkTiming(m, (ros::WallTime::now() - host_start).toSec()));
     return true;
   };
 
@@ -68,18 +49,9 @@ int main(int argc, char** argv) {
       mv.accel_mm_s2 = static_cast<std::uint16_t>(std::lround(req.accel_mps2 * 1e3));
       fillStepResult(link.send(mv, timeout_s, true, req.seq), res);
     } else if (req.target == Req::TARGET_WAIT) {
-      if (!(req.wait_s >= 0 && req.wait_s < 3600)) {
-        res.success = false;
-        res.message = "wait step rejected: wait_s must be in [0, 3600) s";
-        return;
-      }
-      protocol::CmdWait w;
-      w.wait_ms = static_cast<std::uint32_t>(std::lround(req.wait_s * 1e3));
-      fillStepResult(link.send(w, timeout_s + req.wait_s, true, req.seq), res);
+      if (!runWaitStep(link, req, res, timeout_s)) return;
     } else {
-      res.success = false;
-      res.message = "track_host executes TARGET_TRACK and TARGET_WAIT steps only (got target " +
-                    std::to_string(req.target) + ")";
+      rejectStepTarget("track_host", "TARGET_TRACK and TARGET_WAIT", req.target, res);
       return;
     }
     res.track_pos_m = pos_m;

@@ -5,6 +5,7 @@
 #include <rig_msgs/TruckRc.h>
 
 #include "board_host.hpp"
+#include "rig_drivers/ros/conversions.hpp"
 
 using namespace rig_drivers;
 
@@ -15,24 +16,8 @@ int main(int argc, char** argv) {
   ros::Publisher pub = host.nh().advertise<rig_msgs::TruckRc>("truck_rc", 30);
 
   auto publish_state = [&](const protocol::Frame& f, const ros::Time& stamp) {
-    protocol::TruckRcPayload p;
-    if (protocol::decodePayload(f, p) != protocol::DecodeError::kNone) return false;
-    using P = protocol::TruckRcPayload;
     rig_msgs::TruckRc m;
-    m.header.stamp = stamp;
-    m.header.frame_id = host.frameId();
-    m.ch2_us = p.ch2_us;
-    m.ch3_us = p.ch3_us;
-    m.ch5_us = p.ch5_us;
-    m.ch7_us = p.ch7_us;
-    m.steering = p.steering_permille * 1e-3f;
-    m.speed_signal = p.speed_permille * 1e-3f;
-    m.speed_mps = p.speed_mm_s * 1e-3f;
-    m.running = p.flags & P::kRunning;
-    m.recording = p.flags & P::kRecording;
-    m.signal_ok = p.flags & P::kSignalOk;
-    m.board_time_s = p.board_time_ms * 1e-3;
-    m.frame_seq = f.seq;
+    if (!conv::fromFrame(f, stamp, host.frameId(), m)) return false;
     pub.publish(m);
     return true;
   };
