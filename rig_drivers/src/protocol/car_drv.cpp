@@ -121,7 +121,10 @@ bool CarDrv::handleCommand(const Frame& f) {
         sendAck(f.seq, f.id, AckStatus::kBadArgument);
         return true;
       }
-      if (move_pending_) {
+      // Mode 2 (step sequence): one move at a time, the host waits for its "done". Mode 1
+      // (continuous): demands stream at the frame rate, the newest replaces a move still settling
+      // (startMove acks the superseded one "aborted").
+      if (move_pending_ && mode_ != 1) {
         sendAck(f.seq, f.id, AckStatus::kBusy);
         return true;
       }

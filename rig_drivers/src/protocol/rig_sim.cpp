@@ -660,11 +660,8 @@ void RigSimulator::Impl::sendServoDemand() {
   protocol::CmdServo cmd;
   cmd.pitch_cdeg = static_cast<int16_t>(std::lround(servoDemand(ServoAxis::kPitch, tr) * 100.0));
   cmd.yaw_cdeg = static_cast<int16_t>(std::lround(servoDemand(ServoAxis::kYaw, tr) * 100.0));
-  // CarDRV answers a demand that arrives while the previous one is still slewing with "busy";
-  // a stop first ends the pending move (acked "aborted"), so the 30 Hz demand stream goes through.
-  const uint32_t s_stop = seq();
-  sendCommand(BoardId::kCar, protocol::encodeCommand(BoardId::kCar, MsgId::kStop, s_stop), s_stop,
-              false);
+  // The car board is in mode 1 here: each demand replaces the one still settling (that one is
+  // acked "aborted", see onAck).
   const uint32_t s = seq();
   sendCommand(BoardId::kCar, protocol::encodeMessage(BoardId::kCar, s, cmd), s, false);
 }

@@ -217,6 +217,11 @@ TEST(CarDrv, ImuAndTimeOfFlight) {
 TEST(CarDrv, StepAcknowledgedAfterSlewAndSettle) {
   Rig rig;
   const auto c = rp::CarDrvConfig::defaults();
+  rp::CmdMode mode2;
+  mode2.mode = 2;  // step sequence: one move at a time
+  sendTo(rig.drv, 100, mode2);
+  ASSERT_EQ(rig.hw.out.lastStatus(100), st(AckStatus::kDone));
+  ASSERT_EQ(rig.drv.mode(), 2);
   sendTo(rig.drv, 1, servo(15.0, -6.0));
   EXPECT_EQ(rig.hw.out.lastStatus(1), st(AckStatus::kAccepted));
   const double t_done = 15.0 / c.servo_rate_deg_s + c.settle_s;  // the larger axis sets it
@@ -247,4 +252,50 @@ TEST(CarDrv, StreamsAt30Hz) {
   rig.run(5.0, 500);
   const auto all = rig.hw.out.all<rp::CarSensorsPayload>();
   EXPECT_NEAR(static_cast<double>(all.size()), 150.0, 1.0);
+}
+
+TEST(CarDrv, Mode1StreamedDemandsAreAllAcceptedAndFollowed) {
+  // 30 Hz demand stream of a 20 deg, 1/12.6 Hz pitch sine with a 10 deg yaw cosine (the RT3 kind
+  // of run): every demand arrives while the previous one is still settling (settle_s = 0.3 s).
+  Rig rig;
+  const auto c = rp::CarDrvConfig::defaults();
+  ASSERT_EQ(rig.drv.mode(), 1);
+  ASSERT_GT(c.settle_s, 1.0 / 30.0);
+  const double lsb = 5.0 / 1024;
+  const double tol_p = 0.5 * lsb * maxSlope(c.pitch.deg_of_volts) + 0.005;
+  const double tol_y = 0.5 * lsb * maxSlope(c.yaw.deg_of_volts) + 0.005;
+  const double w = 2 * M_PI / 12.6;
+  const int n = 90;
+  double p = 0, y = 0;
+  for (int k = 0; k < n; ++k) {
+    const uint32_t seq = 1 + k;
+    p = std::round(2000 * std::sin(w * k / 30.0)) * 0.01;  // centidegrees on the wire
+    y = std::round(1000 * std::cos(w * k / 30.0)) * 0.01;
+    sendTo(rig.drv, seq, servo(p, y));
+    ASSERT_EQ(rig.hw.out.lastStatus(seq), st(AckStatus::kAccepted)) << k;
+    if (k > 0) {  // the previous demand was still settling: superseded, never "busy"
+      ASSERT_EQ(rig.hw.out.lastStatus(seq - 1), st(AckStatus::kAborted)) << k;
+    }
+    // Followed at once: the servo pulse is the new demand through the calibration (ideal servo).
+    EXPECT_NEAR(rig.hw.angle[0], p, 1e-9) << k;
+    EXPECT_NEAR(rig.hw.angle[1], y, 1e-9) << k;
+    EXPECT_DOUBLE_EQ(rig.drv.pitchDemandDeg(), p);
+    EXPECT_DOUBLE_EQ(rig.drv.yawDemandDeg(), y);
+    rig.run(1.0 / 30.0);
+    // The stream frame after the demand reports it and the sensor reading of the new angle.
+    const auto s = rig.last();
+    EXPECT_NEAR(s.pitch_dem_cdeg * 0.01, p, 0.005) << k;
+    EXPECT_NEAR(s.yaw_dem_cdeg * 0.01, y, 0.005) << k;
+    EXPECT_NEAR(s.pitch_cdeg * 0.01, p, tol_p) << k;
+    EXPECT_NEAR(s.yaw_cdeg * 0.01, y, tol_y) << k;
+  }
+  for (int k = 0; k < n; ++k) {
+    for (const auto& a : rig.hw.out.acksFor(1 + k))
+      EXPECT_NE(static_cast<int>(a.status), st(AckStatus::kBusy)) << k;
+  }
+  // The last demand completes after its slew and settle like a single move.
+  rig.run(c.settle_s + 0.1);
+  EXPECT_EQ(rig.hw.out.lastStatus(n), st(AckStatus::kDone));
+  EXPECT_NEAR(rig.hw.angle[0], p, 1e-9);
+  EXPECT_NEAR(rig.hw.angle[1], y, 1e-9);
 }

@@ -55,6 +55,9 @@ class CarHardware : public SerialOut {
   virtual bool readTof(uint16_t& range_mm) = 0;
 };
 
+/// Servo demands: in mode 1 (continuous) every demand is accepted and replaces a move still
+/// slewing/settling (that one is acked "aborted"); in mode 2 (step sequence) a demand arriving
+/// before the previous move's "done" is answered "busy".
 class CarDrv : public FirmwareBoard {
  public:
   /// Throws std::invalid_argument naming every bad field.

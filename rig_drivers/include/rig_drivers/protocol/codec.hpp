@@ -213,7 +213,7 @@ enum class AckStatus : uint8_t {
   kEStop = 6,        ///< rejected or aborted: emergency stop active
   kEndOfTrack = 7,   ///< aborted: end-of-track sensor tripped during the move
   kFailed = 8,       ///< aborted: e.g. homing did not find the far sensor
-  kAborted = 9,      ///< aborted by stop/reset
+  kAborted = 9,      ///< aborted by stop/reset, or superseded by a newer mode 1 demand
 };
 constexpr uint8_t kMaxAckStatus = 9;
 /// Name of an ack status ("done", "busy", ...).
