@@ -131,6 +131,36 @@ inline void markRow(std::uint8_t* __restrict o, int n) {
   for (int u = 0; u < n; ++u) o[u] = o[u] ? 0 : 255;
 }
 
+/// std::round(y) for 0 <= y: adding and removing 2^52 rounds to the nearest integer (ties to
+/// even, exactly, in the default rounding mode); a tie rounded down is moved up, as std::round
+/// rounds halves away from zero. Beyond 2^52 every double is an integer already.
+inline double roundNonNegative(double y) {
+  constexpr double kTwo52 = 4503599627370496.0;
+  const double t = (y + kTwo52) - kTwo52;
+  const double r = t + (y - t == 0.5 ? 1.0 : 0.0);
+  return y < kTwo52 ? r : y;
+}
+
+/// Final stage of a row of noisy depths (metres): depths outside [min_m, max_m] become 0, and
+/// positive ones are quantised to round(z / quantum_m) * quantum_m (quantum_m 0 = none), then
+/// stored as float. Branch-free so it vectorises.
+inline void finishRow(float* __restrict out, const double* __restrict z, int n, double min_m,
+                      double max_m, double quantum_m) {
+  if (quantum_m > 0.0) {
+    for (int u = 0; u < n; ++u) {
+      const bool inside = (z[u] >= min_m) & (z[u] <= max_m);
+      const double x = inside ? z[u] : 0.0;
+      const double q = roundNonNegative(x / quantum_m) * quantum_m;
+      out[u] = static_cast<float>(x > 0.0 ? q : x);
+    }
+  } else {
+    for (int u = 0; u < n; ++u) {
+      const bool inside = (z[u] >= min_m) & (z[u] <= max_m);
+      out[u] = static_cast<float>(inside ? z[u] : 0.0);
+    }
+  }
+}
+
 /// Dilates a 0/1 mask by a (2r+1)^2 square clipped at the image border: out = 1 where any mask
 /// pixel lies within chessboard distance r. Separable (rows, then columns).
 std::vector<std::uint8_t> dilateSquare(const std::vector<std::uint8_t>& mask, int w, int h, int r) {
@@ -404,9 +434,9 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
     // The Gaussian depth noise of pixels 2k and 2k+1 shares one Box-Muller pair: its radius and
     // angle are computed once and kept for the partner (which may start the next row).
     std::size_t cached_pair = static_cast<std::size_t>(-1);
-    double radius = 0.0, angle = 0.0, cos_a = 0.0, sin_a = 0.0;
-    bool have_cos = false, have_sin = false;
-    for (int v = r.begin(); v < r.end(); ++v)
+    double radius = 0.0, cos_a = 0.0, sin_a = 0.0;
+    std::vector<double> row(w);  // noisy depths of the row before clipping and quantisation
+    for (int v = r.begin(); v < r.end(); ++v) {
       for (int u = 0; u < w; ++u) {
         const std::size_t i = static_cast<std::size_t>(v) * w + u;
         const int e = edge[i];
@@ -458,17 +488,11 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
               cached_pair = pair;
               const double u1 = uniform(seed, pair, kGauss1), u2 = uniform(seed, pair, kGauss2);
               radius = std::sqrt(-2.0 * std::log(u1));
-              angle = 2.0 * M_PI * u2;
-              have_cos = have_sin = false;
+              // Both at once (one sincos call); unused when the partner has no return.
+              const double angle = 2.0 * M_PI * u2;
+              ::sincos(angle, &sin_a, &cos_a);
             }
-            double g;
-            if (i & 1) {
-              if (!have_sin) sin_a = std::sin(angle), have_sin = true;
-              g = radius * sin_a;
-            } else {
-              if (!have_cos) cos_a = std::cos(angle), have_cos = true;
-              g = radius * cos_a;
-            }
+            const double g = radius * ((i & 1) ? sin_a : cos_a);
             z += sigma * g;
           }
         }
@@ -477,10 +501,11 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         if (c.random_dropout_prob > 0.0 && uniform(seed, i, kRandomDrop) < c.random_dropout_prob)
           z = 0.0;
 
-        if (!(z >= range.min_m && z <= range.max_m)) z = 0.0;
-        if (z > 0.0 && c.quantum_m > 0.0) z = roundHalfAway(z / c.quantum_m) * c.quantum_m;
-        out.data[i] = static_cast<float>(z);
+        row[u] = z;
       }
+      finishRow(&out.data[static_cast<std::size_t>(v) * w], row.data(), w, range.min_m, range.max_m,
+                c.quantum_m);
+    }
   });
   return out;
 }
