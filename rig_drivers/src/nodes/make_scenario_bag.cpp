@@ -34,6 +34,7 @@
 #include "depth_track/core/sim/scene.hpp"
 #include "rig_drivers/protocol/rig_sim.hpp"
 #include "rig_drivers/ros/conversions.hpp"
+#include "rig_drivers/ros/sim_conversions.hpp"
 
 using namespace rig_drivers;
 namespace dsim = depth_track::sim;
@@ -45,29 +46,6 @@ const ros::Time kEpoch(1700000000, 0);
 const char* kOpticalFrame = "camera_depth_optical_frame";
 
 ros::Time stamp(double t_s) { return kEpoch + ros::Duration(t_s); }
-
-geometry_msgs::Transform toTransform(const Eigen::Isometry3d& T) {
-  geometry_msgs::Transform m;
-  m.translation.x = T.translation().x();
-  m.translation.y = T.translation().y();
-  m.translation.z = T.translation().z();
-  const Eigen::Quaterniond q(T.rotation());
-  m.rotation.x = q.x();
-  m.rotation.y = q.y();
-  m.rotation.z = q.z();
-  m.rotation.w = q.w();
-  return m;
-}
-
-geometry_msgs::TransformStamped tfMsg(const ros::Time& t, const std::string& parent,
-                                      const std::string& child, const Eigen::Isometry3d& T) {
-  geometry_msgs::TransformStamped m;
-  m.header.stamp = t;
-  m.header.frame_id = parent;
-  m.child_frame_id = child;
-  m.transform = toTransform(T);
-  return m;
-}
 
 /// Writes one decoded board frame (state streams) and the raw frame itself.
 class RigTopics {
@@ -137,16 +115,6 @@ sensor_msgs::CameraInfo cameraInfo(const depth_track::PinholeIntrinsics& K) {
   return ci;
 }
 
-/// base_link -> camera_link (camera body: x forward, y left, z up) of the rig. On ServoTrack
-/// base_link is the camera body itself (the gimbal moves it), on ServoTruck the rear axle.
-Eigen::Isometry3d baseToCameraLink(const RigSimulator& sim) {
-  if (sim.scenario().rig == RigKind::kServoTrack) return Eigen::Isometry3d::Identity();
-  TruckModel m(sim.config().truck);
-  Eigen::Isometry3d T = m.T_B_C();
-  T.linear() = T.linear() * depth_track::rotationBodyFromOptical().transpose();
-  return T;
-}
-
 int run(int argc, char** argv) {
   CLI::App app{"Writes one rig simulator scenario as a bag (offline, deterministic)."};
   std::string scenario_path, out_dir = ".", compression = "lz4";
@@ -189,10 +157,7 @@ int run(int argc, char** argv) {
   // Static frames, latched like a live static_transform_publisher.
   {
     tf2_msgs::TFMessage st;
-    st.transforms.push_back(tfMsg(kEpoch, "base_link", "camera_link", baseToCameraLink(sim)));
-    Eigen::Isometry3d T_L_O = Eigen::Isometry3d::Identity();
-    T_L_O.linear() = depth_track::rotationBodyFromOptical();
-    st.transforms.push_back(tfMsg(kEpoch, "camera_link", kOpticalFrame, T_L_O));
+    st.transforms = conv::rigStaticTransforms(sim, kEpoch, kOpticalFrame);
     // A custom connection header replaces rosbag's own: give it the message's type fields too.
     using Traits = ros::message_traits::DataType<tf2_msgs::TFMessage>;
     auto hdr = boost::make_shared<ros::M_string>();
@@ -252,17 +217,9 @@ int run(int argc, char** argv) {
       info.header.stamp = t;
       info.header.seq = image_seq++;
       bag.write("/camera/camera_info", t, info);
-      geometry_msgs::PoseStamped pose;
-      pose.header.stamp = t;
-      pose.header.frame_id = "map";
-      const geometry_msgs::Transform tr = toTransform(cf.truth.T_W_C);
-      pose.pose.position.x = tr.translation.x;
-      pose.pose.position.y = tr.translation.y;
-      pose.pose.position.z = tr.translation.z;
-      pose.pose.orientation = tr.rotation;
-      bag.write("/rig_sim/camera_pose", t, pose);
+      bag.write("/rig_sim/camera_pose", t, conv::toPoseStamped(t, "map", cf.truth.T_W_C));
       tf2_msgs::TFMessage tf;
-      tf.transforms.push_back(tfMsg(t, "map", "camera_gt", cf.truth.T_W_C));
+      tf.transforms.push_back(conv::toTransformStamped(t, "map", "camera_gt", cf.truth.T_W_C));
       bag.write("/tf", t, tf);
       ++frames;
     }

@@ -30,8 +30,8 @@
 #include <cstring>
 #include <map>
 
-#include "depth_track/core/servotrack_kinematics.hpp"
 #include "rig_drivers/protocol/rig_sim.hpp"
+#include "rig_drivers/ros/sim_conversions.hpp"
 
 using namespace rig_drivers;
 
@@ -122,23 +122,6 @@ class PtyBoard {
   int slave_ = -1;
 };
 
-geometry_msgs::TransformStamped toTf(const ros::Time& t, const std::string& parent,
-                                     const std::string& child, const Eigen::Isometry3d& T) {
-  geometry_msgs::TransformStamped m;
-  m.header.stamp = t;
-  m.header.frame_id = parent;
-  m.child_frame_id = child;
-  m.transform.translation.x = T.translation().x();
-  m.transform.translation.y = T.translation().y();
-  m.transform.translation.z = T.translation().z();
-  const Eigen::Quaterniond q(T.rotation());
-  m.transform.rotation.x = q.x();
-  m.transform.rotation.y = q.y();
-  m.transform.rotation.z = q.z();
-  m.transform.rotation.w = q.w();
-  return m;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -196,17 +179,8 @@ int main(int argc, char** argv) {
   std::unique_ptr<tf2_ros::StaticTransformBroadcaster> static_pub;
   if (publish_static) {
     static_pub = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
-    Eigen::Isometry3d T_B_L = Eigen::Isometry3d::Identity();
-    if (sim->scenario().rig == RigKind::kServoTruck) {
-      TruckModel m(sim->config().truck);
-      T_B_L = m.T_B_C();
-      T_B_L.linear() = T_B_L.linear() * depth_track::rotationBodyFromOptical().transpose();
-    }
-    Eigen::Isometry3d T_L_O = Eigen::Isometry3d::Identity();
-    T_L_O.linear() = depth_track::rotationBodyFromOptical();
-    const ros::Time now = ros::Time::now();
-    static_pub->sendTransform({toTf(now, "base_link", "camera_link", T_B_L),
-                               toTf(now, "camera_link", "camera_depth_optical_frame", T_L_O)});
+    static_pub->sendTransform(
+        conv::rigStaticTransforms(*sim, ros::Time::now(), "camera_depth_optical_frame"));
   }
 
   std::vector<ros::ServiceServer> services;
@@ -251,16 +225,8 @@ int main(int argc, char** argv) {
       }
       for (const SimCameraFrame& cf : sim->takeCameraFrames()) {
         const ros::Time stamp = ros_t0 + ros::Duration(cf.truth.t_s);
-        geometry_msgs::PoseStamped pose;
-        pose.header.stamp = stamp;
-        pose.header.frame_id = "map";
-        const geometry_msgs::TransformStamped tf = toTf(stamp, "map", "camera_gt", cf.truth.T_W_C);
-        pose.pose.position.x = tf.transform.translation.x;
-        pose.pose.position.y = tf.transform.translation.y;
-        pose.pose.position.z = tf.transform.translation.z;
-        pose.pose.orientation = tf.transform.rotation;
-        pose_pub.publish(pose);
-        tf_pub.sendTransform(tf);
+        pose_pub.publish(conv::toPoseStamped(stamp, "map", cf.truth.T_W_C));
+        tf_pub.sendTransform(conv::toTransformStamped(stamp, "map", "camera_gt", cf.truth.T_W_C));
       }
       for (const std::string& e : sim->takeEvents()) ROS_WARN("rig_sim: %s", e.c_str());
       if (sim->finished() && !reported_done) {
