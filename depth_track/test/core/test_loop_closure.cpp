@@ -3,6 +3,7 @@
 // with loop closure ends with less drift and a smaller maximum error than without.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -10,6 +11,7 @@
 
 #include "depth_track/core/map/loop_closure.hpp"
 #include "depth_track/core/map/mapper.hpp"
+#include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
@@ -164,4 +166,87 @@ TEST(LoopClosure, RevisitRunDriftsLessWithLoopClosure) {
   // Measured: end drift 42 -> 12 mm, maximum error 42 -> 32 mm.
   EXPECT_LT(closed.end_m, 0.6 * open.end_m);
   EXPECT_LT(closed.max_m, open.max_m);
+}
+
+// Half-resolution loop closure (virtual image cast at 320x240, 5-px cells on both images) against
+// full resolution (640x480, 10-px cells): on a noisy chair map at 5 mm, from predictions off by
+// up to 3 cm / 1 deg, both pull the pose to the same place. The cells cover the same view, so the
+// corrected poses may differ only by the registration's noise: asserted within half a voxel in
+// translation and 0.1 deg in rotation, and both within a voxel of the truth.
+TEST(LoopClosure, HalfResolutionRaycastAgreesWithFullResolution) {
+  const sim::RenderedRun run = sim::makeRun("xtest1_05_chair");
+  const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  MapConfig mc;  // 5 mm voxels
+  VoxelMap map(mc);
+  map.placeRegion(run.T_W_C.front());
+  for (std::size_t i = 0; i < 40 && i < run.size(); i += 4)
+    map.fuse(run.renderFrame(i, noise, 7, 2), run.intrinsics, run.T_W_C[i]);
+  LoopClosureConfig full;
+  full.enabled = true;
+  full.min_model_age_frames = 0;
+  full.deadband_m = 0.0;
+  full.deadband_deg = 0.0;
+  LoopClosureConfig half = full;
+  half.raycast_downsample = 2;
+  const std::size_t i = 20;
+  const DepthImage cur = run.renderFrame(i, noise, 99, 2);
+  const Eigen::Isometry3d& T_true = run.T_W_C[i];
+  const Eigen::Vector3d offsets[] = {
+      {0.0, 0.0, 0.0}, {0.01, 0.0, 0.03}, {-0.02, 0.01, 0.0}, {0.0, -0.015, -0.02}};
+  const double yaw_deg[] = {0.0, 0.5, -1.0, 0.0};
+  double worst_dt = 0.0, worst_dr = 0.0;
+  for (int k = 0; k < 4; ++k) {
+    Eigen::Isometry3d pred = T_true;
+    pred.translation() += T_true.linear() * offsets[k];
+    pred.linear() = pred.linear() *
+                    Eigen::AngleAxisd(yaw_deg[k] * M_PI / 180.0, Eigen::Vector3d::UnitY()).matrix();
+    const LoopClosureResult a = closeLoop(map, cur, run.intrinsics, run.range, pred, full);
+    const LoopClosureResult b = closeLoop(map, cur, run.intrinsics, run.range, pred, half);
+    ASSERT_TRUE(a.accepted) << a.reason;
+    ASSERT_TRUE(b.accepted) << b.reason;
+    const double dt = (a.T_W_C.translation() - b.T_W_C.translation()).norm();
+    const double dr = rotationAngle(a.T_W_C.inverse() * b.T_W_C) * 180.0 / M_PI;
+    worst_dt = std::max(worst_dt, dt);
+    worst_dr = std::max(worst_dr, dr);
+    std::printf(
+        "offset %d: full %.2f mm / %.3f deg off truth (%d cells, cast %.1f ms), half %.2f mm / "
+        "%.3f deg (%d cells, cast %.1f ms); full vs half %.2f mm, %.3f deg\n",
+        k, 1000 * (a.T_W_C.translation() - T_true.translation()).norm(),
+        rotationAngle(a.T_W_C.inverse() * T_true) * 180.0 / M_PI, a.model_cells, a.ms_raycast,
+        1000 * (b.T_W_C.translation() - T_true.translation()).norm(),
+        rotationAngle(b.T_W_C.inverse() * T_true) * 180.0 / M_PI, b.model_cells, b.ms_raycast,
+        1000 * dt, dr);
+    EXPECT_LT((a.T_W_C.translation() - T_true.translation()).norm(), mc.voxel_size_m);
+    EXPECT_LT((b.T_W_C.translation() - T_true.translation()).norm(), mc.voxel_size_m);
+    EXPECT_LT(dt, 0.5 * mc.voxel_size_m);
+    EXPECT_LT(dr, 0.1);
+  }
+  std::printf("half vs full resolution: worst %.2f mm, %.3f deg\n", 1000 * worst_dt, worst_dr);
+}
+
+TEST(LoopClosure, DownsampleHelpersRejectOddSizesAndKeepPixelCentres) {
+  const PinholeIntrinsics k = PinholeIntrinsics::isotropic(640, 480, 600.0);
+  const PinholeIntrinsics h = downsampledIntrinsics(k, 2);
+  EXPECT_EQ(h.width, 320);
+  EXPECT_EQ(h.height, 240);
+  // A point seen at full-resolution pixel (u, v) lands at ((u + 0.5) / 2 - 0.5, ...).
+  const Eigen::Vector3f p(0.3f, -0.2f, 1.7f);
+  float u = 0, v = 0, uh = 0, vh = 0;
+  ASSERT_TRUE(k.project(p, &u, &v));
+  ASSERT_TRUE(h.project(p, &uh, &vh));
+  EXPECT_NEAR(uh, (u + 0.5f) / 2 - 0.5f, 1e-4);
+  EXPECT_NEAR(vh, (v + 0.5f) / 2 - 0.5f, 1e-4);
+  DepthImage d(4, 2, 1.0f);
+  d.at(0, 0) = 2.0f;  // block (0, 0): mean of 2, 1, 1, 1
+  d.at(3, 1) = 0.0f;  // block (1, 0) has a hole: no return
+  const DepthImage dd = downsampleDepth(d, 2);
+  ASSERT_EQ(dd.width, 2);
+  EXPECT_FLOAT_EQ(dd.at(0, 0), 1.25f);
+  EXPECT_FLOAT_EQ(dd.at(1, 0), 0.0f);
+  EXPECT_THROW(downsampleDepth(DepthImage(5, 4, 1.0f), 2), std::invalid_argument);
+  EXPECT_THROW(downsampledIntrinsics(PinholeIntrinsics::isotropic(641, 480, 600.0), 2),
+               std::invalid_argument);
+  LoopClosureConfig bad;
+  bad.raycast_downsample = 3;
+  EXPECT_FALSE(bad.validate(k).empty());
 }

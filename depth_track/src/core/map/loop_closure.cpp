@@ -5,6 +5,7 @@
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+#include <string>
 
 #include "depth_track/core/se3.hpp"
 
@@ -16,9 +17,62 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 }
 }  // namespace
 
+PinholeIntrinsics downsampledIntrinsics(const PinholeIntrinsics& K, int factor) {
+  if (factor < 1 || K.width % factor != 0 || K.height % factor != 0)
+    throw std::invalid_argument("downsampledIntrinsics: " + std::to_string(K.width) + "x" +
+                                std::to_string(K.height) + " is not divisible by factor " +
+                                std::to_string(factor));
+  PinholeIntrinsics out = K;
+  out.width = K.width / factor;
+  out.height = K.height / factor;
+  out.fx = K.fx / factor;
+  out.fy = K.fy / factor;
+  // Pixel u' covers full-resolution pixels factor*u' .. factor*u' + factor - 1, whose centres
+  // average to factor*u' + (factor - 1)/2.
+  out.cx = (K.cx + 0.5) / factor - 0.5;
+  out.cy = (K.cy + 0.5) / factor - 0.5;
+  return out;
+}
+
+DepthImage downsampleDepth(const DepthImage& depth, int factor) {
+  if (factor < 1 || depth.width % factor != 0 || depth.height % factor != 0)
+    throw std::invalid_argument("downsampleDepth: " + std::to_string(depth.width) + "x" +
+                                std::to_string(depth.height) + " is not divisible by factor " +
+                                std::to_string(factor));
+  const int w = depth.width / factor, h = depth.height / factor;
+  DepthImage out(w, h, 0.0f);
+  const float inv_n = 1.0f / static_cast<float>(factor * factor);
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      float sum = 0.0f;
+      bool complete = true;
+      for (int j = 0; j < factor && complete; ++j) {
+        for (int i = 0; i < factor; ++i) {
+          const float z = depth.at(u * factor + i, v * factor + j);
+          if (!(z > 0.0f) || !std::isfinite(z)) {
+            complete = false;
+            break;
+          }
+          sum += z;
+        }
+      }
+      if (complete) out.at(u, v) = sum * inv_n;
+    }
+  }
+  return out;
+}
+
 std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& intrinsics) const {
   std::vector<std::string> p;
   if (cl_step < 1) p.push_back("cl_step must be >= 1 frame");
+  if (raycast_downsample != 1 && raycast_downsample != 2) {
+    p.push_back("raycast_downsample must be 1 or 2");
+  } else if (raycast_downsample == 2) {
+    if (pca.cell_size % 2 != 0)
+      p.push_back("pca.cell_size must be even with raycast_downsample = 2");
+    if (intrinsics.width % 2 != 0 || intrinsics.height % 2 != 0)
+      p.push_back("image width and height must be even with raycast_downsample = 2");
+  }
   for (const auto& s : pca.validate(intrinsics.width, intrinsics.height)) p.push_back("pca: " + s);
   for (const auto& s : registration.validate()) p.push_back("registration: " + s);
   if (!(min_model_fraction >= 0.0 && min_model_fraction <= 1.0))
@@ -48,9 +102,10 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
 
   LoopClosureResult r;
   r.T_W_C = T_W_C_pred;
+  const int f = config.raycast_downsample;
+  const PinholeIntrinsics K = f == 1 ? intrinsics : downsampledIntrinsics(intrinsics, f);
   auto t0 = std::chrono::steady_clock::now();
-  const DepthImage virt =
-      map.raycast(intrinsics, T_W_C_pred, range, 1, config.min_model_age_frames);
+  const DepthImage virt = map.raycast(K, T_W_C_pred, range, 1, config.min_model_age_frames);
   r.ms_raycast = msSince(t0);
   r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
   std::ostringstream why;
@@ -62,8 +117,10 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   }
   t0 = std::chrono::steady_clock::now();
   PcaConfig pca = config.pca;
-  const CellCloud model = reduceToCells(virt, intrinsics, pca);
-  const CellCloud cur = reduceToCells(current, intrinsics, pca);
+  pca.cell_size /= f;
+  const CellCloud model = reduceToCells(virt, K, pca);
+  const CellCloud cur =
+      f == 1 ? reduceToCells(current, K, pca) : reduceToCells(downsampleDepth(current, f), K, pca);
   r.ms_reduce = msSince(t0);
   r.model_cells = static_cast<int>(model.cells.size());
   r.current_cells = static_cast<int>(cur.cells.size());
@@ -89,8 +146,7 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   t0 = std::chrono::steady_clock::now();
   RegistrationConfig reg = config.registration;
   reg.min_matches = std::min(reg.min_matches, config.min_matches);
-  const RegistrationResult res =
-      registerCells(model, cur, intrinsics, Eigen::Isometry3d::Identity(), reg);
+  const RegistrationResult res = registerCells(model, cur, K, Eigen::Isometry3d::Identity(), reg);
   r.ms_register = msSince(t0);
   r.matches = res.matches;
   r.error_rms_m = res.error_rms_m;

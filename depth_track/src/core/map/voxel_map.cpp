@@ -215,10 +215,9 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
   checkFrameSize(depth, intrinsics);
   checkPose(T_W_C, "fuse");
   FuseStats st;
-  st.valid_pixels = static_cast<int>(depth.countValid());
-  if (st.valid_pixels == 0) throw DepthInputError("fuse: depth frame has no valid return");
 
   Impl& m = *impl_;
+  const std::uint32_t frame_before = m.frame;
   ++m.frame;
   if (m.frame == 0) ++m.frame;  // 0 marks "never touched"
   const int w = depth.width, h = depth.height;
@@ -245,7 +244,9 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
     for (int u = 0; u < w; ++u) {
       const float z = row[u];
-      if (!(z > 0.0f)) continue;
+      // A return is finite and positive; counted here rather than in a separate pass.
+      if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity())) continue;
+      ++st.valid_pixels;
       const Eigen::Vector3f q = Rs * Eigen::Vector3f(xu[u] * z, yv[v] * z, z) + ts;
       const int x = map_detail::fastFloor(q.x());
       const int y = map_detail::fastFloor(q.y());
@@ -292,6 +293,11 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
       }
     }
     pending.clear();
+  }
+  if (st.valid_pixels == 0) {
+    // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
+    m.frame = frame_before;
+    throw DepthInputError("fuse: depth frame has no valid return");
   }
 
   // Pass 2: carving along a rotating subset of rays, through blocks that hold returns.

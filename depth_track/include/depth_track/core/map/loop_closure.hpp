@@ -27,6 +27,11 @@ struct LoopClosureConfig {
     p.min_valid_fraction = 0.9;
     return p;
   }();
+  /// 1 = ray-cast the virtual image at full resolution; 2 = at half resolution (intrinsics
+  /// scaled by 1/2 about pixel centres), with the current frame averaged over 2x2 pixels and
+  /// both reduced with cells of pca.cell_size / 2 px, so a cell covers the same view (4x fewer
+  /// rays; corrections agree with full resolution, see test_loop_closure).
+  int raycast_downsample = 1;
   RegistrationConfig registration;  ///< method and pair gates of the correcting registration
   /// The model is the map without blocks first seen in the last min_model_age_frames fused
   /// frames: registering against what the last frames just fused only echoes their pose (and
@@ -79,5 +84,15 @@ struct LoopClosureResult {
 LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
                             const PinholeIntrinsics& intrinsics, const DepthRange& range,
                             const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config);
+
+/// Intrinsics of the same camera at 1/factor resolution: focal lengths divided by factor and
+/// the principal point mapped with pixel centres kept (c' = (c + 0.5) / factor - 0.5).
+/// Throws std::invalid_argument when width or height is not a multiple of factor.
+PinholeIntrinsics downsampledIntrinsics(const PinholeIntrinsics& intrinsics, int factor);
+
+/// Depth image averaged over factor x factor pixel blocks (metres): a block with any pixel
+/// without a return gets none, so no depth is blended across an edge or a hole. Throws
+/// std::invalid_argument when the size is not a multiple of factor. Thread-safe.
+DepthImage downsampleDepth(const DepthImage& depth, int factor);
 
 }  // namespace depth_track

@@ -66,8 +66,11 @@ struct MapConfig {
   double clamp_min = 0.1192;         ///< lower clamp of the probability
   double clamp_max = 0.971;          ///< upper clamp of the probability
   double occupancy_threshold = 0.5;  ///< probability above which a voxel is occupied
-  int carve_stride_px = 8;           ///< carve along every n-th pixel ray in u and v (1 = all)
-  double carve_margin_m = 0.01;      ///< stop carving this far in front of a return (noise), m
+  /// Carve along every n-th pixel ray in u and v (1 = all); the offset rotates, so every pixel is
+  /// carved once per n^2 frames. 12 would bring fusion to ~10 ms, but the loop-closure revisit
+  /// test then accepts a bad correction (max error 32 -> 66 mm), so 8 stays the default.
+  int carve_stride_px = 8;
+  double carve_margin_m = 0.01;  ///< stop carving this far in front of a return (noise), m
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
