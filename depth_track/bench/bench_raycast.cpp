@@ -1,7 +1,8 @@
 // Depth-from-volume speed: ms per 640x480 virtual depth image ray-cast from the voxel map on one
 // core (Release). Map: the rendered XTest1_05_Chair run with L515 noise fused at its ground-truth
 // poses (5 mm voxels, 4x3x4 m region); views: poses of the same run. Also the reference ray cast
-// without empty-space skipping (for scale) and 2 threads.
+// without empty-space skipping (for scale), 2 threads, and the half-resolution 320x240 cast that
+// loop closure uses with raycast_downsample = 2.
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "depth_track/core/map/loop_closure.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
@@ -46,19 +48,22 @@ double median(std::vector<double> v) {
   return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
-// range(0): 0 = tile-bounded ray cast, 1 = reference (no skipping); range(1): threads.
+// range(0): 0 = tile-bounded ray cast, 1 = reference (no skipping); range(1): threads;
+// range(2): resolution divisor (1 = 640x480, 2 = 320x240).
 void BM_Raycast(benchmark::State& state) {
   const Setup& s = setup();
   const bool reference = state.range(0) == 1;
   const int threads = static_cast<int>(state.range(1));
+  const int factor = static_cast<int>(state.range(2));
+  const PinholeIntrinsics K = downsampledIntrinsics(s.run.intrinsics, factor);
   std::vector<double> ms, cpu_ms;
   std::size_t i = 0, valid = 0;
   for (auto _ : state) {
     const Eigen::Isometry3d& T = s.run.T_W_C[i];
     const auto t0 = std::chrono::steady_clock::now();
     const double c0 = threadCpuMs();
-    const DepthImage d = reference ? s.map->raycastReference(s.run.intrinsics, T, s.run.range)
-                                   : s.map->raycast(s.run.intrinsics, T, s.run.range, threads);
+    const DepthImage d = reference ? s.map->raycastReference(K, T, s.run.range)
+                                   : s.map->raycast(K, T, s.run.range, threads);
     cpu_ms.push_back(threadCpuMs() - c0);
     ms.push_back(
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
@@ -70,10 +75,16 @@ void BM_Raycast(benchmark::State& state) {
   state.counters["valid_px"] = static_cast<double>(valid);
   state.counters["occupied"] = static_cast<double>(s.map->occupiedCount());
   state.SetLabel(std::string(reference ? "reference march" : "tile-bounded, chunk/block skipping") +
-                 ", " + std::to_string(threads) + " thread(s)");
+                 ", " + std::to_string(K.width) + "x" + std::to_string(K.height) + ", " +
+                 std::to_string(threads) + " thread(s)");
 }
-BENCHMARK(BM_Raycast)->Args({0, 1})->Args({0, 2})->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_Raycast)->Args({1, 1})->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+BENCHMARK(BM_Raycast)
+    ->Args({0, 1, 1})
+    ->Args({0, 2, 1})
+    ->Args({0, 1, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_Raycast)->Args({1, 1, 1})->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
 }  // namespace
 
