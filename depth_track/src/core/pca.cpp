@@ -5,6 +5,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "depth_track/core/cells.hpp"
@@ -48,6 +49,40 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
 
 namespace {
 
+// Adjugate (transposed cofactor matrix) of a symmetric 3x3 matrix: det(S) S^-1 where S is
+// invertible, and still defined (a projector onto the null space) where it is not.
+Eigen::Matrix3d adjugate(const Eigen::Matrix3d& S) {
+  Eigen::Matrix3d a;
+  a(0, 0) = S(1, 1) * S(2, 2) - S(1, 2) * S(1, 2);
+  a(0, 1) = a(1, 0) = S(0, 2) * S(1, 2) - S(0, 1) * S(2, 2);
+  a(0, 2) = a(2, 0) = S(0, 1) * S(1, 2) - S(0, 2) * S(1, 1);
+  a(1, 1) = S(0, 0) * S(2, 2) - S(0, 2) * S(0, 2);
+  a(1, 2) = a(2, 1) = S(0, 1) * S(0, 2) - S(0, 0) * S(1, 2);
+  a(2, 2) = S(0, 0) * S(1, 1) - S(0, 1) * S(0, 1);
+  return a;
+}
+
+// Smallest eigenvector of a symmetric PSD 3x3 matrix with adjugate `adj`, by inverse iteration
+// from `start` (the adjugate has the inverse's eigenvectors, and stays defined when the matrix
+// is singular). False when it has not settled to 1e-7 within a few steps (a small eigengap):
+// the caller then uses the closed-form solver.
+bool smallestEigenvector(const Eigen::Matrix3d& adj, Eigen::Vector3d start, Eigen::Vector3d* out) {
+  for (int step = 0; step < 8; ++step) {
+    Eigen::Vector3d next = adj * start;
+    const double len = next.norm();
+    if (!(len > 1e-300) || !std::isfinite(len)) return false;
+    next /= len;
+    if (next.dot(start) < 0.0) next = -next;
+    const bool settled = (next - start).squaredNorm() < 1e-14;
+    start = next;
+    if (settled && step >= 1) {
+      *out = start;
+      return true;
+    }
+  }
+  return false;
+}
+
 enum class CellOutcome { kKept, kInvalid, kDegenerate, kEdge };
 
 // Reduces one grid cell in a single pass over its pixels: sums of vertices taken relative to
@@ -66,8 +101,11 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   };
   const int max_missing = n * n - min_valid;
   int count = 0, missing = 0;
-  double ox = 0, oy = 0, oz = 0;  // origin: the first valid vertex
-  double sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+  // Sums relative to the first valid vertex in float (patch extents are centimetres, so the
+  // covariance keeps ~1e-9 m^2 absolute precision); the depth range gates the edge test.
+  float ox = 0, oy = 0, oz = 0;
+  float sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+  float z_lo = std::numeric_limits<float>::max(), z_hi = 0.0f;
   for (int v = v0; v < v0 + n; ++v) {
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
     const float vr = v_ray[v];
@@ -77,16 +115,15 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
         if (++missing > max_missing) return CellOutcome::kInvalid;
         continue;
       }
-      if (edge_test &&
-          ((u > u0 && jump(z, row[u - 1])) || (v > v0 && jump(z, row[u - depth.width]))))
-        return CellOutcome::kEdge;
-      const double x = u_ray[u] * z, y = vr * z;
+      const float x = u_ray[u] * z, y = vr * z;
       if (count == 0) {
         ox = x;
         oy = y;
         oz = z;
       }
-      const double dx = x - ox, dy = y - oy, dz = z - oz;
+      z_lo = std::min(z_lo, z);
+      z_hi = std::max(z_hi, z);
+      const float dx = x - ox, dy = y - oy, dz = z - oz;
       sx += dx;
       sy += dy;
       sz += dz;
@@ -97,6 +134,16 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
       syz += dy * dz;
       szz += dz * dz;
       ++count;
+    }
+  }
+  // Only a cell whose depths spread wider than one edge jump can contain one.
+  if (edge_test && z_hi - z_lo > std::max(floor_m, rel * z_lo)) {
+    for (int v = v0; v < v0 + n; ++v) {
+      const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
+      for (int u = u0; u < u0 + n; ++u) {
+        if ((u > u0 && jump(row[u], row[u - 1])) || (v > v0 && jump(row[u], row[u - depth.width])))
+          return CellOutcome::kEdge;
+      }
     }
   }
   if (count < min_valid || count < 3) return CellOutcome::kInvalid;
@@ -111,15 +158,15 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   cov(1, 1) = (syy - sy * my) * norm;
   cov(1, 2) = cov(2, 1) = (syz - sy * mz) * norm;
   cov(2, 2) = (szz - sz * mz) * norm;
-  const Eigen::Vector3d mean(ox + mx, oy + my, oz + mz);
+  const Eigen::Vector3d mean(double(ox) + mx, double(oy) + my, double(oz) + mz);
 
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
   es.computeDirect(cov);
   const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
-  if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
-    return CellOutcome::kDegenerate;
   Eigen::Matrix3d vecs = es.eigenvectors();
   Eigen::Vector3d normal = vecs.col(0).normalized();
+  if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
+    return CellOutcome::kDegenerate;
   if (normal.dot(mean) > 0.0) normal = -normal;  // face the camera (which sits at the origin)
   if (!normal.allFinite()) return CellOutcome::kDegenerate;
   vecs.col(0) = normal;
@@ -197,9 +244,14 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
     S(1, 1) = s2[3] - k * m.y() * m.y();
     S(1, 2) = S(2, 1) = s2[4] - k * m.y() * m.z();
     S(2, 2) = s2[5] - k * m.z() * m.z();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(S);
-    Eigen::Vector3d normal = es.eigenvectors().col(0).normalized();
+    // Smallest eigenvector by inverse iteration from the cell's own normal (a few steps on a
+    // surface patch); the closed-form solver where that does not settle.
+    Eigen::Vector3d normal;
+    if (!smallestEigenvector(adjugate(S), c.normal_C.cast<double>(), &normal)) {
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+      es.computeDirect(S);
+      normal = es.eigenvectors().col(0).normalized();
+    }
     if (normal.dot(c.mean_C.cast<double>()) > 0.0) normal = -normal;
     normals[i] = normal.allFinite() ? normal.cast<float>() : c.normal_C;
   }

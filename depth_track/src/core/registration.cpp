@@ -130,9 +130,31 @@ struct FmCache {
   std::vector<char> pass;  ///< per current cell: the verdict
 };
 
-MatchResult associate(const CellCloud& reference, const CellCloud& current, const Moved& moved,
-                      const PinholeIntrinsics& K, const Eigen::Matrix3d& R_ref_cur,
-                      const RegistrationConfig& config, int radius, FmCache* fm_cache = nullptr) {
+// The reference cells as the association reads them: means and normals packed contiguously,
+// and the grid index padded by the search radius so the window needs no bounds checks.
+struct RefGrid {
+  int pad = 0, stride = 0;
+  std::vector<int> index;
+  std::vector<Eigen::Vector3f> mean, normal;
+
+  RefGrid(const CellCloud& reference, int radius)
+      : pad(radius), stride(reference.grid_w + 2 * radius) {
+    index.assign(static_cast<std::size_t>(stride) * (reference.grid_h + 2 * radius), -1);
+    mean.reserve(reference.cells.size());
+    normal.reserve(reference.cells.size());
+    for (std::size_t i = 0; i < reference.cells.size(); ++i) {
+      const Cell& c = reference.cells[i];
+      index[static_cast<std::size_t>(c.gy + pad) * stride + c.gx + pad] = static_cast<int>(i);
+      mean.push_back(c.mean_C);
+      normal.push_back(c.normal_C);
+    }
+  }
+};
+
+MatchResult associate(const CellCloud& reference, const RefGrid& grid, const CellCloud& current,
+                      const Moved& moved, const PinholeIntrinsics& K,
+                      const Eigen::Matrix3d& R_ref_cur, const RegistrationConfig& config,
+                      int radius, FmCache* fm_cache = nullptr) {
   MatchResult result;
   const std::size_t n_cur = current.cells.size();
   std::vector<int> best_ref(n_cur, -1);
@@ -142,33 +164,41 @@ MatchResult associate(const CellCloud& reference, const CellCloud& current, cons
   const float cos_min = static_cast<float>(config.match.cos_min);
   const float w2 = static_cast<float>(config.match.normal_weight_m * config.match.normal_weight_m);
   const float cs = static_cast<float>(reference.cell_size);
+  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
+  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  radius = std::min(radius, grid.pad);
   // Overlap mask: a cell predicted within one cell of the border of the reference view may have
   // its true partner outside it, so it is not matched at all.
   const float margin = config.overlap_mask ? cs : 0.0f;
 
   for (std::size_t c = 0; c < n_cur; ++c) {
     const Eigen::Vector3f& p = moved.p[c];
-    float u, v;
-    if (!K.project(p, &u, &v) || !K.inImage(u, v, margin)) continue;
+    if (!(p.z() > 0.0f)) continue;
+    const float u = fx * p.x() / p.z() + cx, v = fy * p.y() / p.z() + cy;
+    if (!K.inImage(u, v, margin)) continue;
     const int gx = static_cast<int>((u + 0.5f) / cs);
     const int gy = static_cast<int>((v + 0.5f) / cs);
     const Eigen::Vector3f& n = moved.n[c];
     int best = -1;
     float best_c = std::numeric_limits<float>::max();
     for (int y = gy - radius; y <= gy + radius; ++y) {
+      const int* row =
+          grid.index.data() + static_cast<std::size_t>(y + grid.pad) * grid.stride + grid.pad;
       for (int x = gx - radius; x <= gx + radius; ++x) {
-        const int r = reference.cellAt(x, y);
+        const int r = row[x];
         if (r < 0) continue;
-        const Cell& rc = reference.cells[r];
-        const float d2 = (p - rc.mean_C).squaredNorm();
+        const Eigen::Vector3f d = p - grid.mean[r];
+        const float d2 = d.squaredNorm();
         if (d2 > dist_max2) continue;
-        const float cosang = n.dot(rc.normal_C);
+        const Eigen::Vector3f& nr = grid.normal[r];
+        const float cosang = n.dot(nr);
         if (cosang < cos_min) continue;
         // Rank candidates by their offset along the reference surface, not by the full 3D
         // distance: picking the nearest of several noisy depths selects whichever noise happens
-        // to agree with the current estimate, which pins the estimate where it is.
-        const float along = (p - rc.mean_C).dot(rc.normal_C);
-        const float cost = d2 - along * along + w2 * (n - rc.normal_C).squaredNorm();
+        // to agree with the current estimate, which pins the estimate where it is. The normal
+        // term is |n - n_r|^2 = 2 - 2 cos for unit normals.
+        const float along = d.dot(nr);
+        const float cost = d2 - along * along + w2 * (2.0f - 2.0f * cosang);
         if (cost < best_c) {
           best_c = cost;
           best = r;
@@ -297,7 +327,8 @@ MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
                        const RegistrationConfig& config) {
   Moved moved;
   moveCells(current, T_ref_cur, &moved);
-  return associate(reference, current, moved, intrinsics, T_ref_cur.rotation(), config,
+  const RefGrid grid(reference, config.match.search_radius_cells);
+  return associate(reference, grid, current, moved, intrinsics, T_ref_cur.rotation(), config,
                    config.match.search_radius_cells);
 }
 
@@ -319,6 +350,7 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
   bool error_rose = false;
   int since_best = 0;
   Moved moved;
+  const RefGrid grid(reference, config.match.search_radius_cells);
   FmCache fm_cache{std::vector<int>(current.cells.size(), -1),
                    std::vector<char>(current.cells.size(), 0)};
   for (int it = 0; it < config.max_iterations; ++it) {
@@ -330,8 +362,8 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
     gated.match.dist_min_m =
         std::max(config.match.dist_min_m,
                  config.match.initial_dist_m / static_cast<double>(1 << std::min(it, 20)));
-    const MatchResult m =
-        associate(reference, current, moved, intrinsics, T.rotation(), gated, radius, &fm_cache);
+    const MatchResult m = associate(reference, grid, current, moved, intrinsics, T.rotation(),
+                                    gated, radius, &fm_cache);
     result.iterations = it + 1;
     result.candidates = m.candidates;
     result.duplicates_broken = m.duplicates_broken;

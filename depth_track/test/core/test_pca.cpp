@@ -175,3 +175,45 @@ TEST(Pca, EdgeCellsArePruned) {
   cfg.edge_jump_rel = 0.0;
   EXPECT_EQ(reduceToCells(depth, l515(), cfg).stats.pruned_edge, 0);
 }
+
+TEST(Pca, PooledNormalIsTheClosedFormEigenvectorOfThePooledScatter) {
+  // Pooled normals come from inverse iteration; they must equal the smallest eigenvector of the
+  // pooled scatter matrix computed directly from the pixels of the 3x3 cells.
+  DepthImage depth =
+      renderPlanes(depth_track::test::cornerRoom(), l515(), Eigen::Isometry3d::Identity());
+  std::mt19937 rng(5);
+  std::normal_distribution<float> noise(0.0f, 0.002f);
+  for (float& d : depth.data) d += noise(rng);
+  PcaConfig cfg;                   // 5 px cells, 3x3 pooling
+  cfg.normal_merge_dist_m = 10.0;  // pool every neighbour, so the pixels are easy to gather
+  cfg.edge_jump_rel = 0.0;
+  const CellCloud cloud = reduceToCells(depth, l515(), cfg);
+  int checked = 0;
+  double worst = 0.0;
+  for (std::size_t i = 0; i < cloud.cells.size(); i += 97) {
+    const Cell& c = cloud.cells[i];
+    if (c.gx < 1 || c.gy < 1 || c.gx > cloud.grid_w - 2 || c.gy > cloud.grid_h - 2) continue;
+    std::vector<Eigen::Vector3d> pts;
+    bool complete = true;
+    for (int gy = c.gy - 1; gy <= c.gy + 1; ++gy)
+      for (int gx = c.gx - 1; gx <= c.gx + 1; ++gx) {
+        if (cloud.cellAt(gx, gy) < 0) complete = false;
+        for (int v = gy * 5; v < gy * 5 + 5; ++v)
+          for (int u = gx * 5; u < gx * 5 + 5; ++u)
+            if (depth.at(u, v) > 0)
+              pts.push_back(l515().backProject(u, v, depth.at(u, v)).cast<double>());
+      }
+    if (!complete) continue;
+    Eigen::Vector3d m = Eigen::Vector3d::Zero();
+    for (const auto& p : pts) m += p;
+    m /= pts.size();
+    Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+    for (const auto& p : pts) S += (p - m) * (p - m).transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(S);
+    worst =
+        std::max(worst, 1.0 - std::abs(es.eigenvectors().col(0).dot(c.normal_C.cast<double>())));
+    ++checked;
+  }
+  EXPECT_GT(checked, 80);
+  EXPECT_LT(worst, 1e-6);  // 1 - |cos|: within 0.08 deg (float storage of the cell statistics)
+}
