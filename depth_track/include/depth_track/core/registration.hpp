@@ -36,8 +36,8 @@ struct RegistrationConfig {
   double fm_eps_m2 = 1e-6;      ///< covariance regulariser, = PcaConfig::min_eigenvalue_m2
   int max_iterations = 30;      ///< ICP iterations (re-matching after each update)
   int patience = 3;             ///< stop after this many iterations without a lower error
-  double tolerance_m = 1e-5;    ///< stop when an update moves points less than this, metres
-  double tolerance_rad = 1e-5;  ///< ... and rotates less than this, radians
+  double tolerance_m = 1e-4;    ///< stop when an update moves points less than this, metres
+  double tolerance_rad = 1e-4;  ///< ... and rotates less than this, radians
   bool robust = true;           ///< Huber weighting of residuals
   double huber_delta_m = 0.01;  ///< Huber threshold, metres
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
