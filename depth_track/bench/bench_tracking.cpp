@@ -28,6 +28,7 @@ void BM_PcaReduce(benchmark::State& state) {
   PcaConfig cfg;
   cfg.cell_size = static_cast<int>(state.range(0));
   cfg.normal_radius_cells = static_cast<int>(state.range(1));
+  cfg.compute_inv_sqrt = false;  // as the tracker runs it for P2L/P2P
   std::size_t cells = 0;
   for (auto _ : state) {
     CellCloud c = reduceToCells(f.a, f.run.intrinsics, cfg);

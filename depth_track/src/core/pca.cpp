@@ -160,11 +160,16 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   cov(2, 2) = (szz - sz * mz) * norm;
   const Eigen::Vector3d mean(double(ox) + mx, double(oy) + my, double(oz) + mz);
 
+  // With pooled normals and no Förstner–Moonen terms only the eigenvalues of the cell itself are
+  // read (degeneracy, surface variation): skip its eigenvectors, and let pooling start from the
+  // viewing ray.
+  const bool values_only = config.normal_radius_cells > 0 && !config.compute_inv_sqrt;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-  es.computeDirect(cov);
+  es.computeDirect(cov, values_only ? Eigen::EigenvaluesOnly : Eigen::ComputeEigenvectors);
   const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
-  Eigen::Matrix3d vecs = es.eigenvectors();
-  Eigen::Vector3d normal = vecs.col(0).normalized();
+  Eigen::Matrix3d vecs = values_only ? Eigen::Matrix3d::Zero() : es.eigenvectors();
+  Eigen::Vector3d normal =
+      values_only ? Eigen::Vector3d(-mean.normalized()) : Eigen::Vector3d(vecs.col(0).normalized());
   if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
     return CellOutcome::kDegenerate;
   if (normal.dot(mean) > 0.0) normal = -normal;  // face the camera (which sits at the origin)

@@ -217,3 +217,27 @@ TEST(Pca, PooledNormalIsTheClosedFormEigenvectorOfThePooledScatter) {
   EXPECT_GT(checked, 80);
   EXPECT_LT(worst, 1e-6);  // 1 - |cos|: within 0.08 deg (float storage of the cell statistics)
 }
+
+TEST(Pca, ValuesOnlyPathGivesTheSameCells) {
+  // Without inverse square roots (P2L, P2P) the cell's own eigenvectors are skipped and pooling
+  // starts from the viewing ray: means, eigenvalues and pooled normals must not change.
+  DepthImage depth =
+      renderPlanes(depth_track::test::cornerRoom(), l515(), Eigen::Isometry3d::Identity());
+  std::mt19937 rng(9);
+  std::normal_distribution<float> noise(0.0f, 0.002f);
+  for (float& d : depth.data) d += noise(rng);
+  PcaConfig full;
+  PcaConfig lean = full;
+  lean.compute_inv_sqrt = false;
+  const CellCloud a = reduceToCells(depth, l515(), full), b = reduceToCells(depth, l515(), lean);
+  ASSERT_EQ(a.cells.size(), b.cells.size());
+  double worst = 0.0;
+  for (std::size_t i = 0; i < a.cells.size(); ++i) {
+    ASSERT_EQ(a.cells[i].mean_C, b.cells[i].mean_C);
+    ASSERT_LT((a.cells[i].eigenvalues - b.cells[i].eigenvalues).norm(),
+              1e-6f * a.cells[i].eigenvalues(2));
+    worst = std::max(
+        worst, 1.0 - a.cells[i].normal_C.cast<double>().dot(b.cells[i].normal_C.cast<double>()));
+  }
+  EXPECT_LT(worst, 1e-7);  // 1 - cos: the same pooled normals to ~0.03 deg
+}

@@ -17,8 +17,9 @@ struct Cell {
   Eigen::Vector3f normal_C;       ///< unit normal (smallest eigenvector), facing the camera
   Eigen::Matrix3f cov;            ///< covariance of the cell's vertices, m^2
   Eigen::Vector3f eigenvalues;    ///< ascending, m^2
-  Eigen::Matrix3f eigenvectors;   ///< column i belongs to eigenvalues(i) (column 0: the cell's own
-                                  ///< normal, before pooling)
+  Eigen::Matrix3f eigenvectors;   ///< column i belongs to eigenvalues(i); left zero, with
+                                  ///< normal_C = the pooled normal, when normals are pooled and
+                                  ///< compute_inv_sqrt is off (nothing then reads them)
   Eigen::Matrix3f cov_inv_sqrt;   ///< (cov + eps I)^(-1/2), for the Förstner–Moonen metric, 1/m
   float surface_variation = 0.f;  ///< lambda0 / (lambda0 + lambda1 + lambda2), 0 for a plane
   float det = 0.f;                ///< determinant of cov, m^6
