@@ -1,8 +1,10 @@
 // car_host: ROS driver of the ServoTrack carriage board (CarDRV: pitch/yaw servos and sensors,
-// MPU6050, time-of-flight position). Publishes rig_msgs/CarriageSensors (30 Hz) and
-// rig_msgs/RawFrame; serves ~command, ~mode, ~vers, ~para, ~step (gimbal moves and waits of a
-// mode 2 sequence). Parameters: config/drivers.yaml.
+// MPU6050, time-of-flight position). Publishes rig_msgs/CarriageSensors (30 Hz),
+// rig_msgs/LinkTiming (Time3 board clock, Time5 host clock) and rig_msgs/RawFrame; serves ~command,
+// ~mode, ~vers, ~para, ~step (gimbal moves and waits of a mode 2 sequence). Parameters:
+// config/drivers.yaml.
 #include <rig_msgs/CarriageSensors.h>
+#include <rig_msgs/LinkTiming.h>
 
 #include <atomic>
 #include <cmath>
@@ -17,6 +19,8 @@ int main(int argc, char** argv) {
   BoardHost host(protocol::BoardId::kCar, "car_host");
   if (!host.configure()) return 1;
   ros::Publisher pub = host.nh().advertise<rig_msgs::CarriageSensors>("carriage_sensors", 30);
+  ros::Publisher timing_pub = host.nh().advertise<rig_msgs::LinkTiming>("link_timing", 30);
+  const ros::WallTime host_start = ros::WallTime::now();
   std::atomic<double> pitch_deg{0.0}, yaw_deg{0.0}, tof_m{0.0};
 
   auto publish_state = [&](const protocol::Frame& f, const ros::Time& stamp) {
@@ -26,6 +30,7 @@ int main(int argc, char** argv) {
     yaw_deg = m.yaw_deg;
     tof_m = m.tf_pos_m;
     pub.publish(m);
+    timing_pub.publish(conv::carLinkTiming(m, (ros::WallTime::now() - host_start).toSec()));
     return true;
   };
 

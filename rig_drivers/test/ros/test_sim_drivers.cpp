@@ -11,6 +11,7 @@
 
 #include "rig_msgs/CarriageSensors.h"
 #include "rig_msgs/Command.h"
+#include "rig_msgs/LinkTiming.h"
 #include "rig_msgs/SetMode.h"
 #include "rig_msgs/TrackState.h"
 
@@ -27,6 +28,16 @@ struct Listener {
     track.push_back(s.header.stamp);
     track_seq.push_back(s.frame_seq);
     track_state = s.state;
+  }
+  std::vector<ros::Time> timing_track, timing_car;
+  std::vector<double> car_clock_s;
+  void onTiming(const rig_msgs::LinkTiming& t) {
+    std::lock_guard<std::mutex> l(m);
+    if (t.time1_s >= 0 && t.time2_s >= 0) timing_track.push_back(t.header.stamp);
+    if (t.time3_s >= 0 && t.time5_s >= 0) {
+      timing_car.push_back(t.header.stamp);
+      car_clock_s.push_back(t.time3_s);
+    }
   }
   void onCar(const rig_msgs::CarriageSensors& s) {
     std::lock_guard<std::mutex> l(m);
@@ -70,6 +81,7 @@ TEST(SimDrivers, AcknowledgedCommandsStreamsAndUnplugReplug) {
   auto s2 = nh.subscribe("carriage_sensors", 200, &Listener::onCar, &L);
   auto s3 = nh.subscribe("track_host/connected", 5, &Listener::onTrackUp, &L);
   auto s4 = nh.subscribe("car_host/connected", 5, &Listener::onCarUp, &L);
+  auto s5 = nh.subscribe("link_timing", 400, &Listener::onTiming, &L);
   ros::AsyncSpinner spinner(2);
   spinner.start();
   ASSERT_TRUE(waitUntil([&] { return L.up(&Listener::track_up) && L.up(&Listener::car_up); }, 30))
@@ -97,6 +109,16 @@ TEST(SimDrivers, AcknowledgedCommandsStreamsAndUnplugReplug) {
   ros::WallDuration(3.2).sleep();
   EXPECT_NEAR(L.in(L.track, t0, t0 + ros::Duration(3.0)), 90, 4);
   EXPECT_NEAR(L.in(L.car, t0, t0 + ros::Duration(3.0)), 90, 4);
+  // Link timing (thesis 4.2.2.1): the track path's clocks (Time1, Time2) and the carriage path's
+  // (Time3, Time5) both arrive with every state record; CarDRV's clock advances in real time.
+  EXPECT_NEAR(L.in(L.timing_track, t0, t0 + ros::Duration(3.0)), 90, 4);
+  EXPECT_NEAR(L.in(L.timing_car, t0, t0 + ros::Duration(3.0)), 90, 4);
+  {
+    std::lock_guard<std::mutex> l(L.m);
+    ASSERT_GE(L.car_clock_s.size(), 60u);
+    const double span = L.car_clock_s.back() - L.car_clock_s[L.car_clock_s.size() - 60];
+    EXPECT_NEAR(span, 59.0 / 30.0, 0.2);  // 59 frame intervals of the 30 Hz clock
+  }
 
   // Unplug the track board in the simulator: only that driver goes down.
   std_srvs::SetBool unplug;

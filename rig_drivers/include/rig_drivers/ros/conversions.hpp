@@ -121,6 +121,17 @@ inline rig_msgs::LinkTiming trackLinkTiming(const rig_msgs::TrackState& s, doubl
   return t;
 }
 
+/// The carriage path's clocks (thesis 4.2.2.1): Time3 = CarDRV's board clock, Time5 = CarHost's
+/// clock; the track path's clocks come from trackLinkTiming.
+inline rig_msgs::LinkTiming carLinkTiming(const rig_msgs::CarriageSensors& s, double host_time_s) {
+  rig_msgs::LinkTiming t;
+  t.header.stamp = s.header.stamp;
+  t.time3_s = s.board_time_s;
+  t.time5_s = host_time_s;
+  t.time1_s = t.time2_s = t.time4_s = t.time6_s = t.round_trip_s = -1.0;
+  return t;
+}
+
 /// One wire frame as rig_msgs/RawFrame (`port`: device path, or "sim:<board>" offline).
 inline rig_msgs::RawFrame rawFrameMsg(const ros::Time& stamp, const std::string& frame_id,
                                       const std::string& port, protocol::BoardId board,
