@@ -18,6 +18,7 @@
 
 #include "rig_msgs/RawFrame.h"
 #include "rig_msgs/TrackState.h"
+#include "wait_until.hpp"
 
 namespace {
 
@@ -56,14 +57,7 @@ struct Listener {
   }
 };
 
-bool waitUntil(const std::function<bool()>& pred, double seconds) {
-  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::WallTime::now() < end && ros::ok()) {
-    if (pred()) return true;
-    ros::WallDuration(0.01).sleep();
-  }
-  return pred();
-}
+using rig_drivers::test::waitUntil;
 
 }  // namespace
 

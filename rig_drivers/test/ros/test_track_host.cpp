@@ -17,6 +17,7 @@
 #include "rig_msgs/SetMode.h"
 #include "rig_msgs/TrackState.h"
 #include "rig_msgs/Version.h"
+#include "wait_until.hpp"
 
 namespace {
 
@@ -60,14 +61,7 @@ struct Listener {
   }
 };
 
-bool waitUntil(const std::function<bool()>& pred, double seconds) {
-  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::WallTime::now() < end) {
-    if (pred()) return true;
-    ros::WallDuration(0.01).sleep();
-  }
-  return pred();
-}
+using rig_drivers::test::waitUntil;
 
 }  // namespace
 
