@@ -1,5 +1,6 @@
 // Voxel fusion: plane -> voxels on the plane, carving, equivalence with OctoMap's own updates,
-// bad input leaves the map untouched, .bt round trip.
+// carving's ray traversal against the reference walk, bad input leaves the map untouched, .bt
+// round trip.
 #include <gtest/gtest.h>
 #include <octomap/OcTree.h>
 
@@ -10,7 +11,10 @@
 #include <set>
 #include <tuple>
 
+#include "../../src/core/map/carve_walk.hpp"
+#include "../../src/core/map/voxel_map_impl.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
 
 using namespace depth_track;
 
@@ -174,6 +178,98 @@ TEST(Fusion, MatchesOctomapKeyLevelUpdates) {
   EXPECT_GT(static_cast<double>(same) / compared, 0.98);
   EXPECT_EQ(occupied, map.occupiedCount());
   EXPECT_EQ(occupied_same, occupied);
+}
+
+TEST(Fusion, CarveWalkVisitsTheVoxelsOfTheReferenceWalk) {
+  // Carving steps voxel to voxel (map_detail::walkCarve); Impl::walk<false> re-derives every
+  // voxel from the ray point. Both must visit the same voxels of allocated blocks, in the same
+  // order, on carve rays (camera centre to return - margin) of the rendered chair run through
+  // a grid whose blocks are those of the run's fused map. The rig's poses put many ray steps
+  // exactly on voxel edges, which exercises the edge/corner crossings.
+  using namespace depth_track::map_detail;
+  const sim::RenderedRun run = sim::makeRun("xtest1_05_chair");
+  const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  MapConfig cfg;
+  VoxelMap fused(cfg);
+  fused.placeRegion(run.T_W_C.front());
+  for (std::size_t f = 0; f < run.size(); f += 24)
+    fused.fuse(run.renderFrame(f, noise, 42, 2), run.intrinsics, run.T_W_C[f]);
+
+  // A grid with the fused map's occupied blocks allocated (the walks only look at allocation).
+  VoxelMap::Impl m;
+  m.s = cfg.voxel_size_m;
+  m.inv_s = 1.0 / cfg.voxel_size_m;
+  std::set<std::tuple<int, int, int>> chunk_set, block_set;
+  for (const VoxelKey& k : fused.occupiedKeys()) {
+    chunk_set.insert({k.x() >> 6, k.y() >> 6, k.z() >> 6});
+    block_set.insert({k.x() >> 3, k.y() >> 3, k.z() >> 3});
+  }
+  ASSERT_GT(block_set.size(), 1000u);
+  Eigen::Vector3i lo = Eigen::Vector3i::Constant(1 << 20), hi = -lo;
+  for (const auto& c : chunk_set) {
+    const Eigen::Vector3i cc(std::get<0>(c), std::get<1>(c), std::get<2>(c));
+    lo = lo.cwiseMin(cc);
+    hi = hi.cwiseMax(cc);
+  }
+  m.index_lo = lo;
+  m.index_dims = hi - lo + Eigen::Vector3i::Ones();
+  m.index.assign(static_cast<std::size_t>(m.index_dims.prod()), nullptr);
+  for (const auto& c : chunk_set) {
+    auto ch = std::make_unique<Chunk>();
+    ch->coord = Eigen::Vector3i(std::get<0>(c), std::get<1>(c), std::get<2>(c));
+    const Eigen::Vector3i r = ch->coord - lo;
+    m.index[(static_cast<std::size_t>(r.z()) * m.index_dims.y() + r.y()) * m.index_dims.x() +
+            r.x()] = ch.get();
+    m.chunks.push_back(std::move(ch));
+  }
+  for (const auto& b : block_set) {
+    const int x = std::get<0>(b) * 8, y = std::get<1>(b) * 8, z = std::get<2>(b) * 8;
+    m.chunkAt(x >> 6, y >> 6, z >> 6)->blocks[blockInChunk(x, y, z)] = std::make_unique<Block>();
+  }
+
+  using Visit = std::tuple<const Chunk*, int, int>;
+  auto keyOfVisit = [](const Visit& v) {
+    const int bi = std::get<1>(v), i = std::get<2>(v);
+    return Eigen::Vector3i(std::get<0>(v)->coord * 64 +
+                           Eigen::Vector3i(bi & 7, (bi >> 3) & 7, bi >> 6) * 8 +
+                           Eigen::Vector3i(i & 7, (i >> 3) & 7, i >> 6));
+  };
+  std::mt19937 rng(5);
+  std::size_t rays = 0, differing = 0, voxels = 0, edge_steps = 0;
+  for (std::size_t f = 3; f < run.size(); f += 20) {
+    const DepthImage d = run.renderFrame(f, noise, 42, 2);
+    const Eigen::Isometry3d& T = run.T_W_C[f];
+    const PinholeIntrinsics& K = run.intrinsics;
+    for (int r = 0; r < 1500; ++r) {
+      const int u = static_cast<int>(rng() % d.width), v = static_cast<int>(rng() % d.height);
+      const double z = d.at(u, v);
+      if (!(z > 0.0)) continue;
+      // As fuse() builds a carve ray: d_C = (x, y, 1), t = depth along the optical axis.
+      const Eigen::Vector3d dir =
+          T.linear() * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+      const double t_end = z - cfg.carve_margin_m / dir.norm();
+      std::vector<Visit> ref, mine;
+      m.walk<false>(T.translation(), dir, 0.0, t_end, [&](Chunk& c, int bi, int i, double, double) {
+        ref.emplace_back(&c, bi, i);
+        return false;
+      });
+      walkCarve(m, T.translation(), dir, t_end, [&](Chunk& c, int bi, Block& b, int i) {
+        EXPECT_EQ(&b, c.blocks[bi].get());
+        mine.emplace_back(&c, bi, i);
+      });
+      ++rays;
+      voxels += ref.size();
+      differing += ref != mine;
+      for (std::size_t k = 1; k < ref.size(); ++k) {
+        const Eigen::Vector3i step = keyOfVisit(ref[k]) - keyOfVisit(ref[k - 1]);
+        edge_steps += step.cwiseAbs().maxCoeff() == 1 && step.cwiseAbs().sum() > 1;
+      }
+    }
+  }
+  EXPECT_EQ(differing, 0u) << "of " << rays << " rays";
+  EXPECT_GT(rays, 5000u);
+  EXPECT_GT(voxels, 50000u);
+  EXPECT_GT(edge_steps, 100u) << "no ray crossed a voxel edge or corner in one step";
 }
 
 TEST(Fusion, BadInputIsNamedAndLeavesTheMapUntouched) {

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "carve_walk.hpp"
 #include "voxel_map_impl.hpp"
 
 namespace depth_track {
@@ -203,51 +204,41 @@ Chunk* chunkAlloc(VoxelMap::Impl& m, const Eigen::Vector3i& c) {
   return ch;
 }
 
-}  // namespace
+// A voxel update resolved ahead of time, so the lines it touches can be fetched first.
+struct Pending {
+  Chunk* chunk;
+  Block* block;
+  int block_index;
+  int voxel;
+};
 
-FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
-                         const Eigen::Isometry3d& T_W_C) {
-  const auto t_start = std::chrono::steady_clock::now();
-  // Every check comes before the first write, so a throw leaves the map as it was.
-  const auto kp = intrinsics.validate();
-  if (!kp.empty()) throw std::invalid_argument("fuse: camera intrinsics: " + joinProblems(kp));
-  if (depth.empty()) throw DepthInputError("fuse: depth frame is empty (0x0 pixels)");
-  checkFrameSize(depth, intrinsics);
-  checkPose(T_W_C, "fuse");
-  FuseStats st;
+// Per-frame projection constants: pixel (u, v) with depth z is the voxel-coordinate point
+// Rs (xu[u] z, yv[v] z, z) + ts.
+struct FrameRays {
+  std::vector<float> xu, yv;
+  Eigen::Matrix3f Rs;
+  Eigen::Vector3f ts;
+};
 
-  Impl& m = *impl_;
-  const std::uint32_t frame_before = m.frame;
-  ++m.frame;
-  if (m.frame == 0) ++m.frame;  // 0 marks "never touched"
+// Pass 1: one hit per voxel holding a return. Consecutive pixels often fall into one voxel; the
+// last key short-cuts them. Kept out of line (as is carve()) so each loop gets the registers.
+__attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& depth,
+                                        const FrameRays& fr, FuseStats& st) {
   const int w = depth.width, h = depth.height;
-  std::vector<float> xu(w), yv(h);
-  for (int u = 0; u < w; ++u) xu[u] = static_cast<float>((u - intrinsics.cx) / intrinsics.fx);
-  for (int v = 0; v < h; ++v) yv[v] = static_cast<float>((v - intrinsics.cy) / intrinsics.fy);
-  // Voxel coordinates directly: q = (R p_C + t) / s.
-  const Eigen::Matrix3f Rs = (T_W_C.linear() * m.inv_s).cast<float>();
-  const Eigen::Vector3f ts = (T_W_C.translation() * m.inv_s).cast<float>();
-
-  // Pass 1: hits. Consecutive pixels often fall into one voxel; the last key short-cuts them.
   int last[3] = {std::numeric_limits<int>::min(), 0, 0};
   Chunk* chunk = nullptr;
   Eigen::Vector3i chunk_coord(std::numeric_limits<int>::min(), 0, 0);
-  struct Pending {
-    Chunk* chunk;
-    Block* block;
-    int block_index;
-    int voxel;
-  };
-  std::vector<Pending> pending;
-  pending.reserve(w);
+  std::vector<Pending> pending(w);  // at most one per pixel of a row
   for (int v = 0; v < h; ++v) {
+    int n = 0;
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
+    const float yv = fr.yv[v];
     for (int u = 0; u < w; ++u) {
       const float z = row[u];
       // A return is finite and positive; counted here rather than in a separate pass.
       if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity())) continue;
       ++st.valid_pixels;
-      const Eigen::Vector3f q = Rs * Eigen::Vector3f(xu[u] * z, yv[v] * z, z) + ts;
+      const Eigen::Vector3f q = fr.Rs * Eigen::Vector3f(fr.xu[u] * z, yv * z, z) + fr.ts;
       const int x = map_detail::fastFloor(q.x());
       const int y = map_detail::fastFloor(q.y());
       const int zz = map_detail::fastFloor(q.z());
@@ -284,52 +275,99 @@ FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intri
       __builtin_prefetch(slot.get());
       __builtin_prefetch(&slot->mask[i >> 6]);
       __builtin_prefetch(&slot->log_odds[i]);
-      pending.push_back({chunk, slot.get(), bi, i});
+      pending[n++] = {chunk, slot.get(), bi, i};
     }
-    for (const Pending& p : pending) {
+    for (int k = 0; k < n; ++k) {
+      const Pending& p = pending[k];
       if (claim(m, *p.block, p.voxel)) {
         applyUpdate(m, *p.chunk, p.block_index, *p.block, p.voxel, m.l_hit);
         ++st.hit_updates;
       }
     }
-    pending.clear();
   }
+}
+
+// Pass 2: carving along every stride-th ray in u and v (offset `phase` rotating over frames),
+// through blocks that hold returns: one miss per voxel passed before (return depth - margin),
+// at most one update per voxel per frame, none for voxels hit in this frame (claimed in pass 1).
+// Misses all change a voxel alike, so the order in which rays claim voxels does not matter: a
+// row of rays is walked first (fetching the voxels' lines), then its misses are applied.
+__attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
+                                     const FrameRays& fr, const Eigen::Isometry3d& T_W_C,
+                                     int stride, double margin_m, FuseStats& st) {
+  const int w = depth.width, h = depth.height;
+  const int phase = static_cast<int>(m.frame % static_cast<std::uint32_t>(stride * stride));
+  const int ou = phase % stride, ov = phase / stride;
+  const Eigen::Vector3d o = T_W_C.translation();
+  const Eigen::Matrix3d R = T_W_C.linear();
+  std::vector<Pending> pending(4096);
+  std::size_t n = 0;
+  auto collect = [&](Chunk& c, int bi, Block& b, int i) {
+    __builtin_prefetch(&b);
+    __builtin_prefetch(&b.mask[i >> 6]);
+    __builtin_prefetch(&b.log_odds[i]);
+    if (__builtin_expect(n == pending.size(), 0)) pending.resize(2 * n);
+    pending[n++] = {&c, &b, bi, i};
+  };
+  for (int v = ov; v < h; v += stride) {
+    const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
+    for (int u = ou; u < w; u += stride) {
+      const double z = row[u];
+      if (!(z > 0.0)) continue;
+      // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
+      const Eigen::Vector3d d = R * Eigen::Vector3d(fr.xu[u], fr.yv[v], 1.0);
+      const double t_end = z - margin_m / d.norm();  // margin metres along the ray
+      if (t_end <= 0.0) continue;
+      map_detail::walkCarve(m, o, d, t_end, collect);
+      ++st.carve_rays;
+    }
+    for (std::size_t k = 0; k < n; ++k) {
+      const Pending& p = pending[k];
+      if (claim(m, *p.block, p.voxel)) {
+        applyUpdate(m, *p.chunk, p.block_index, *p.block, p.voxel, m.l_miss);
+        ++st.miss_updates;
+      }
+    }
+    n = 0;
+  }
+}
+
+}  // namespace
+
+FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                         const Eigen::Isometry3d& T_W_C) {
+  const auto t_start = std::chrono::steady_clock::now();
+  // Every check comes before the first write, so a throw leaves the map as it was.
+  const auto kp = intrinsics.validate();
+  if (!kp.empty()) throw std::invalid_argument("fuse: camera intrinsics: " + joinProblems(kp));
+  if (depth.empty()) throw DepthInputError("fuse: depth frame is empty (0x0 pixels)");
+  checkFrameSize(depth, intrinsics);
+  checkPose(T_W_C, "fuse");
+  FuseStats st;
+
+  Impl& m = *impl_;
+  const std::uint32_t frame_before = m.frame;
+  ++m.frame;
+  if (m.frame == 0) ++m.frame;  // 0 marks "never touched"
+  FrameRays fr;
+  fr.xu.resize(depth.width);
+  fr.yv.resize(depth.height);
+  for (int u = 0; u < depth.width; ++u)
+    fr.xu[u] = static_cast<float>((u - intrinsics.cx) / intrinsics.fx);
+  for (int v = 0; v < depth.height; ++v)
+    fr.yv[v] = static_cast<float>((v - intrinsics.cy) / intrinsics.fy);
+  // Voxel coordinates directly: q = (R p_C + t) / s.
+  fr.Rs = (T_W_C.linear() * m.inv_s).cast<float>();
+  fr.ts = (T_W_C.translation() * m.inv_s).cast<float>();
+
+  fuseHits(m, depth, fr, st);
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
     throw DepthInputError("fuse: depth frame has no valid return");
   }
-
-  // Pass 2: carving along a rotating subset of rays, through blocks that hold returns.
-  if (config_.model == UpdateModel::kProbabilistic) {
-    const int stride = config_.carve_stride_px;
-    const int phase = static_cast<int>(m.frame % static_cast<std::uint32_t>(stride * stride));
-    const int ou = phase % stride, ov = phase / stride;
-    const Eigen::Vector3d o = T_W_C.translation();
-    const Eigen::Matrix3d R = T_W_C.linear();
-    const double margin = config_.carve_margin_m;
-    auto miss = [&](Chunk& c, int bi, int i, double, double) {
-      Block& b = *c.blocks[bi];
-      if (claim(m, b, i)) {
-        applyUpdate(m, c, bi, b, i, m.l_miss);
-        ++st.miss_updates;
-      }
-      return false;
-    };
-    for (int v = ov; v < h; v += stride) {
-      const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
-      for (int u = ou; u < w; u += stride) {
-        const double z = row[u];
-        if (!(z > 0.0)) continue;
-        // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
-        const Eigen::Vector3d d = R * Eigen::Vector3d(xu[u], yv[v], 1.0);
-        const double t_end = z - margin / d.norm();  // margin metres along the ray
-        if (t_end <= 0.0) continue;
-        m.walk<false>(o, d, 0.0, t_end, miss);
-        ++st.carve_rays;
-      }
-    }
-  }
+  if (config_.model == UpdateModel::kProbabilistic)
+    carve(m, depth, fr, T_W_C, config_.carve_stride_px, config_.carve_margin_m, st);
   ++frames_fused_;
   st.ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_start).count();
