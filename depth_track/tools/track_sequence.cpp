@@ -154,6 +154,11 @@ int main(int argc, char** argv) {
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
   app.add_option("--voxel-size", voxel_size, "map voxel edge, m")->capture_default_str();
+  std::string map_region = "4x3x4";
+  app.add_option("--map-region", map_region,
+                 "map region around the start camera, WxHxD metres (camera at the middle of the "
+                 "back face, looking in), or 'unbounded' for a run that looks all around")
+      ->capture_default_str();
   app.add_option("--carving", carving,
                  "carve free space along rays (probabilistic model): on | off")
       ->check(CLI::IsMember({"on", "off"}))
@@ -213,6 +218,19 @@ int main(int argc, char** argv) {
       MapperConfig mc;
       mc.map.voxel_size_m = voxel_size;
       mc.map.model = carving == "on" ? UpdateModel::kProbabilistic : UpdateModel::kHitOnly;
+      if (map_region == "unbounded") {
+        mc.map.bounded = false;
+      } else {
+        double rw = 0, rh = 0, rd = 0;
+        char x1 = 0, x2 = 0;
+        std::istringstream in(map_region);
+        if (!(in >> rw >> x1 >> rh >> x2 >> rd) || x1 != 'x' || x2 != 'x' || !in.eof() ||
+            !(rw > 0 && rh > 0 && rd > 0))
+          throw std::invalid_argument("--map-region '" + map_region +
+                                      "': expected WxHxD in metres (e.g. 4x3x4) or unbounded");
+        mc.map.region_size_m = Eigen::Vector3d(rw, rh, rd);
+        mc.map.start_in_region_m = Eigen::Vector3d(rw / 2, rh / 2, 0.0);
+      }
       mc.loop.enabled = loop_closure == "on" && fuse_poses.empty();
       mc.loop.cl_step = cl_step;
       mc.range = range;

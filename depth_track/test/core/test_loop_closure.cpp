@@ -1,6 +1,7 @@
-// Loop closure against the map: gates reject what the map cannot support, and on a rendered run
-// that revisits its start (ServoTruck Room3: two laps of a circle in a furnished room) tracking
-// with loop closure ends with less drift and a smaller maximum error than without.
+// Loop closure against the map: gates reject what the map cannot support; on a rendered run that
+// revisits its start (ServoTruck Room3: two laps of a circle in a furnished room) with a drifting
+// odometry, and with our own tracker in the thesis's frame-to-frame mode on Room3 and rt3,
+// tracking with loop closure ends with less drift and smaller maximum errors than without.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -9,11 +10,13 @@
 #include <cstdlib>
 #include <vector>
 
+#include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/map/loop_closure.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
+#include "depth_track/core/tracker.hpp"
 
 using namespace depth_track;
 
@@ -166,6 +169,87 @@ TEST(LoopClosure, RevisitRunDriftsLessWithLoopClosure) {
   // Measured: end drift 42 -> 12 mm, maximum error 42 -> 32 mm.
   EXPECT_LT(closed.end_m, 0.6 * open.end_m);
   EXPECT_LT(closed.max_m, open.max_m);
+}
+
+// Our tracker in the thesis's frame-to-frame mode (ICPFrames = 1: every frame registered onto
+// the one before) drifts on the rendered runs by centimetres, the setting in which the thesis
+// studied its loop closure. Each frame is rendered once and tracked twice, open loop and with
+// loop closure (default configuration; accepted corrections are fed back into the tracker as
+// track_sequence does); returns the thesis-style errors of both.
+namespace {
+
+struct TrackedPair {
+  ThesisErrors open, closed;
+  int attempts = 0, accepted = 0;
+};
+
+TrackedPair trackWithAndWithoutLoopClosure(const std::string& name, bool bounded_map) {
+  const sim::RenderedRun run = sim::makeRun(name);
+  const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  TrackerConfig tc;
+  tc.icp_frames = 1;
+  Tracker open(run.intrinsics, tc), closed(run.intrinsics, tc);
+  MapperConfig mc;
+  mc.map.bounded = bounded_map;
+  mc.range = run.range;
+  mc.loop.enabled = true;
+  Mapper mapper(run.intrinsics, mc, closed.pose());
+  std::vector<Eigen::Isometry3d> est_open, est_closed;
+  for (std::size_t i = 0; i < run.size(); ++i) {
+    const DepthImage d = run.renderFrame(i, noise, /*run_seed=*/1);
+    est_open.push_back(open.track(d, run.stamps_s[i]).T_W_C);
+    const FrameStatus st = closed.track(d, run.stamps_s[i]);
+    const MapperFrame mf = mapper.process(d, st.T_W_C);
+    if (mf.loop_attempted && mf.loop.accepted) closed.correctPose(mf.T_W_C);
+    if (mf.loop_attempted && std::getenv("DT_VERBOSE"))
+      std::printf("frame %zu: %s\n", i, mf.loop.reason.c_str());
+    est_closed.push_back(mf.T_W_C);
+  }
+  TrackedPair r;
+  r.open = computeThesisErrors(est_open, run.T_W_C);
+  r.closed = computeThesisErrors(est_closed, run.T_W_C);
+  r.attempts = mapper.loopAttempts();
+  r.accepted = mapper.loopAccepted();
+  for (const auto* e : {&r.open, &r.closed})
+    std::printf(
+        "%s ICPFrames=1 %s: max_err_deg=%.3f,%.3f,%.3f max_err_mm=%.2f,%.2f,%.2f "
+        "end_drift_mm=%.2f\n",
+        name.c_str(), e == &r.open ? "open loop" : "with loop closure", e->max_err_deg.x(),
+        e->max_err_deg.y(), e->max_err_deg.z(), e->max_err_mm.x(), e->max_err_mm.y(),
+        e->max_err_mm.z(), e->end_drift_mm);
+  std::printf("%s: %s\n", name.c_str(), mapper.summary().c_str());
+  return r;
+}
+
+}  // namespace
+
+TEST(LoopClosure, TrackerOnRt3DriftsLessWithLoopClosure) {
+  // Measured (default 4x3x4 m region): max errors 1.14/0.32/0.43 deg and 13.0/37.7/10.1 mm, end
+  // drift 35.6 mm open loop; 0.38/0.14/0.23 deg, 11.5/18.2/9.4 mm and 17.4 mm with loop closure
+  // (14 of 75 attempts accepted).
+  const TrackedPair r = trackWithAndWithoutLoopClosure("rt3", true);
+  EXPECT_GT(r.accepted, 0);
+  EXPECT_LT(r.closed.end_drift_mm, r.open.end_drift_mm);
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_LT(r.closed.max_err_deg[a], r.open.max_err_deg[a]) << "rotation axis " << a;
+    EXPECT_LT(r.closed.max_err_mm[a], r.open.max_err_mm[a]) << "position axis " << a;
+  }
+}
+
+TEST(LoopClosure, TrackerOnRoom3DriftsLessWithLoopClosure) {
+  // The truck circles a furnished room twice; the map is unbounded (the camera looks all
+  // around). Measured: end drift 77 -> 20 mm, max position errors 29/62/35 -> 10/26/25 mm, yaw
+  // 1.92 -> 0.88 deg, pitch 0.48 -> 0.38 deg. Roll stays as it was (0.43 -> 0.45 deg): the
+  // tracker's roll drift is already at the level to which a 5 mm map fixes the rotation about
+  // the optical axis, so roll is bounded here, not asserted lower.
+  const TrackedPair r = trackWithAndWithoutLoopClosure("room3", false);
+  EXPECT_GT(r.accepted, 0);
+  EXPECT_LT(r.closed.end_drift_mm, 0.5 * r.open.end_drift_mm);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_LT(r.closed.max_err_mm[a], r.open.max_err_mm[a]) << "position axis " << a;
+  EXPECT_LT(r.closed.max_err_deg.x(), r.open.max_err_deg.x());
+  EXPECT_LT(r.closed.max_err_deg.y(), r.open.max_err_deg.y());
+  EXPECT_LT(r.closed.max_err_deg.z(), r.open.max_err_deg.z() + 0.1);
 }
 
 // Half-resolution loop closure (virtual image cast at 320x240, 5-px cells on both images) against

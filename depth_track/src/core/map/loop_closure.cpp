@@ -1,6 +1,7 @@
 #include "depth_track/core/map/loop_closure.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -12,6 +13,22 @@
 namespace depth_track {
 
 namespace {
+// Leaves out cells whose surface is seen at grazing incidence: |cos| of the angle between the
+// cell's normal and its viewing ray below min_cos. Rebuilds the grid lookup to match.
+void dropGrazingCells(CellCloud& c, double min_cos) {
+  if (min_cos <= 0.0) return;
+  std::vector<Cell> kept;
+  kept.reserve(c.cells.size());
+  std::fill(c.grid_index.begin(), c.grid_index.end(), -1);
+  for (const Cell& cell : c.cells) {
+    const float r = cell.mean_C.norm();
+    if (!(r > 0.0f) || std::abs(cell.normal_C.dot(cell.mean_C)) < min_cos * r) continue;
+    c.grid_index[static_cast<std::size_t>(cell.gy) * c.grid_w + cell.gx] =
+        static_cast<int>(kept.size());
+    kept.push_back(cell);
+  }
+  c.cells.swap(kept);
+}
 double msSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -78,6 +95,8 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   if (!(min_model_fraction >= 0.0 && min_model_fraction <= 1.0))
     p.push_back("min_model_fraction must lie in [0, 1]");
   if (min_model_cells < 1) p.push_back("min_model_cells must be >= 1");
+  if (!(min_incidence_cos >= 0.0 && min_incidence_cos < 1.0))
+    p.push_back("min_incidence_cos must lie in [0, 1)");
   if (!(min_normal_spread >= 0.0 && min_normal_spread <= 1.0 / 3.0))
     p.push_back("min_normal_spread must lie in [0, 1/3]");
   if (min_matches < 1) p.push_back("min_matches must be >= 1");
@@ -118,9 +137,11 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   t0 = std::chrono::steady_clock::now();
   PcaConfig pca = config.pca;
   pca.cell_size /= f;
-  const CellCloud model = reduceToCells(virt, K, pca);
-  const CellCloud cur =
+  CellCloud model = reduceToCells(virt, K, pca);
+  CellCloud cur =
       f == 1 ? reduceToCells(current, K, pca) : reduceToCells(downsampleDepth(current, f), K, pca);
+  dropGrazingCells(model, config.min_incidence_cos);
+  dropGrazingCells(cur, config.min_incidence_cos);
   r.ms_reduce = msSince(t0);
   r.model_cells = static_cast<int>(model.cells.size());
   r.current_cells = static_cast<int>(cur.cells.size());

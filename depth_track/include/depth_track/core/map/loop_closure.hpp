@@ -42,8 +42,17 @@ struct LoopClosureConfig {
   double deadband_m = 0.005;
   double deadband_deg = 0.1;
   /// Gate 1, sparse model: share of pixels of the virtual image with a return, and its cells.
-  double min_model_fraction = 0.25;
+  /// Half the view: a model covering only one side of the image (the edge of what was mapped
+  /// long enough ago) constrains the rotation about the optical axis poorly, and its
+  /// corrections add more error than they remove (measured on the rendered Room3 run).
+  double min_model_fraction = 0.5;
   int min_model_cells = 200;
+  /// Cells whose surface is seen at grazing incidence (|cos| between the cell's normal and its
+  /// viewing ray below this; 0.3 = 72.5 deg) are left out of both images. A ray grazing a voxel
+  /// surface crosses its shell of occupied voxels over a long stretch, so the virtual depth
+  /// there is smeared along the ray; on a floor seen from a truck this tilted the corrections
+  /// in pitch and roll. 0 keeps every cell.
+  double min_incidence_cos = 0.3;
   /// Gate 1b, degenerate view: the smallest eigenvalue of the mean normal scatter
   /// (1/n) sum n n^T of the model's cells. Below it one translation direction is barely
   /// constrained (a single wall, a floor and a wall), and the registration slides along it.
