@@ -229,19 +229,31 @@ __attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& dep
   Chunk* chunk = nullptr;
   Eigen::Vector3i chunk_coord(std::numeric_limits<int>::min(), 0, 0);
   std::vector<Pending> pending(w);  // at most one per pixel of a row
+  std::vector<int> kx(w), ky(w), kz(w);
+  const Eigen::Matrix3f& R = fr.Rs;
+  const Eigen::Vector3f& t = fr.ts;
   for (int v = 0; v < h; ++v) {
     int n = 0;
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
     const float yv = fr.yv[v];
+    if (v + 1 < h)  // the next row streams in while this one is fused
+      for (int u = 0; u < w; u += 16) __builtin_prefetch(row + w + u);
+    // The row's voxel keys first, in a branch-free loop the compiler vectorises (no-return
+    // pixels get the camera's voxel and are skipped below).
+    for (int u = 0; u < w; ++u) {
+      const float z0 = row[u];
+      const float z = z0 > 0.0f && z0 < std::numeric_limits<float>::infinity() ? z0 : 0.0f;
+      const float px = fr.xu[u] * z, py = yv * z;
+      kx[u] = map_detail::fastFloor(R(0, 0) * px + R(0, 1) * py + R(0, 2) * z + t.x());
+      ky[u] = map_detail::fastFloor(R(1, 0) * px + R(1, 1) * py + R(1, 2) * z + t.y());
+      kz[u] = map_detail::fastFloor(R(2, 0) * px + R(2, 1) * py + R(2, 2) * z + t.z());
+    }
     for (int u = 0; u < w; ++u) {
       const float z = row[u];
       // A return is finite and positive; counted here rather than in a separate pass.
       if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity())) continue;
       ++st.valid_pixels;
-      const Eigen::Vector3f q = fr.Rs * Eigen::Vector3f(fr.xu[u] * z, yv * z, z) + fr.ts;
-      const int x = map_detail::fastFloor(q.x());
-      const int y = map_detail::fastFloor(q.y());
-      const int zz = map_detail::fastFloor(q.z());
+      const int x = kx[u], y = ky[u], zz = kz[u];
       if (x == last[0] && y == last[1] && zz == last[2]) {
         ++st.fused_pixels;
         continue;
