@@ -353,7 +353,18 @@ int main(int argc, char** argv) {
         "pruned_degenerate=%d\n",
         config.pca.cell_size, cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
         cells.stats.pruned_edge, cells.stats.pruned_degenerate);
-    if (mapper && !map_path.empty()) mapper->save(map_path);
+    if (mapper) {
+      if (!map_path.empty()) mapper->save(map_path);
+      const VoxelMap& vm = mapper->map();
+      const double occ = static_cast<double>(std::max<std::size_t>(1, vm.occupiedCount()));
+      // The OcTree holds what was flushed (all of it once saved).
+      std::printf(
+          "map: voxel=%.4f m occupied=%zu observed=%zu blocks=%zu grid_MB=%.1f (%.1f B per "
+          "occupied voxel) octree_MB=%.1f (%.1f B per occupied voxel)%s\n",
+          vm.config().voxel_size_m, vm.occupiedCount(), vm.observedCount(), vm.blockCount(),
+          vm.memoryBytes() / 1e6, vm.memoryBytes() / occ, vm.octreeMemoryBytes() / 1e6,
+          vm.octreeMemoryBytes() / occ, map_path.empty() ? " (octree not flushed: no --map)" : "");
+    }
     std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked,
                 percentile(ms, 0.5), percentile(ms, 0.95),
                 mapper ? (" " + mapper->summary()).c_str() : "");
