@@ -10,21 +10,27 @@
 namespace depth_track {
 namespace map_detail {
 
-// Calls f(chunk, block index, block, voxel index) for every voxel of an allocated block that the
-// ray P(t) = o + t d (world metres) passes for t in [0, t1), in ray order, skipping missing
-// chunks and blocks whole: the voxels Impl::walk<false>(o, d, 0, t1, ...) visits. Where walk<false>
-// re-derives the voxel and its chunk from the ray point at every voxel step, this steps voxel to
-// voxel by integer increments (the next boundary of the stepped axis recomputed from the ray
-// origin, exactly as walk<false> computes it), and only looks the chunk up when the ray crosses
-// into another chunk. Unallocated blocks and chunks are skipped as in walk<false> (exit distance
-// of the block/chunk, then the voxel re-derived). The two differ only where the ray passes within
-// 1e-9 (in t) of a voxel edge or corner: walk<false> may then cross two faces in one step, this
-// crosses them one after the other.
-// Axis of the nearest boundary (the first of equals).
+// Axis of the nearest boundary, t0 < t1 ? (t0 < t2 ? 0 : 2) : (t1 < t2 ? 1 : 2) written as
+// selects so that it compiles without branches (which axis comes next is data dependent).
 inline int argmin3(const double t[3]) {
-  return t[0] < t[1] ? (t[0] < t[2] ? 0 : 2) : (t[1] < t[2] ? 1 : 2);
+  const bool first = t[0] < t[1];
+  const double m = first ? t[0] : t[1];
+  const int a = first ? 0 : 1;
+  return m < t[2] ? a : 2;
 }
 
+// Calls f(chunk, block index, block, voxel index) for every voxel of an allocated block that the
+// ray P(t) = o + t d (world metres) passes for t in [0, t1), in ray order, skipping missing
+// chunks and blocks whole: the voxels Impl::walk<false>(o, d, 0, t1, ...) visits. walk<false>
+// re-derives the voxel, its chunk and block from the ray point at every step (t just past the
+// nearest boundary). This one re-derives the voxel only on entering an allocated block (and
+// after a skip); inside allocated blocks it steps voxel to voxel by integer increments, through
+// unallocated space chunk to chunk or block to block. Boundary distances use walk<false>'s
+// expression, (boundary - O) * (1 / D), and are computed one boundary ahead so that a step does
+// not wait for them. Where the ray passes a voxel edge or corner (several boundaries within
+// walk's 1e-9 step), it crosses all of them at once, as walk<false>'s re-derivation does; the
+// voxel sequences then agree exactly (test_fusion compares them on the rendered chair run,
+// whose poses put many steps exactly on edges).
 template <class F>
 void walkCarve(const VoxelMap::Impl& m, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                double t1, F&& f) {
@@ -48,14 +54,19 @@ void walkCarve(const VoxelMap::Impl& m, const Eigen::Vector3d& o, const Eigen::V
     if (!c) {
       // Missing chunk: step chunk to chunk until one exists, then re-derive the voxel there.
       int k[3] = {q[0] >> kChunkShift, q[1] >> kChunkShift, q[2] >> kChunkShift};
-      double t_next[3];
-      for (int a = 0; a < 3; ++a) t_next[a] = ((k[a] + ahead[a]) * 64 - O[a]) * invD[a];
+      auto bound = [&](int a, int k_a) { return ((k_a + ahead[a]) * 64 - O[a]) * invD[a]; };
+      double t_next[3], t_after[3];
+      for (int a = 0; a < 3; ++a) {
+        t_next[a] = bound(a, k[a]);
+        t_after[a] = bound(a, k[a] + step[a]);
+      }
       while (true) {
         const int a = argmin3(t_next);
         t = std::max(t_next[a], t) + kEps;
         if (t >= t1) return;
         k[a] += step[a];
-        t_next[a] = ((k[a] + ahead[a]) * 64 - O[a]) * invD[a];
+        t_next[a] = t_after[a];
+        t_after[a] = bound(a, k[a] + step[a]);
         if (m.chunkAt(k[0], k[1], k[2])) break;
       }
       continue;
@@ -66,23 +77,32 @@ void walkCarve(const VoxelMap::Impl& m, const Eigen::Vector3d& o, const Eigen::V
       // Missing block: step block to block inside the chunk until one exists or the ray leaves
       // the chunk, then re-derive the voxel there.
       int k[3] = {q[0] >> kBlockShift, q[1] >> kBlockShift, q[2] >> kBlockShift};
-      double t_next[3];
-      for (int a = 0; a < 3; ++a) t_next[a] = ((k[a] + ahead[a]) * 8 - O[a]) * invD[a];
+      auto bound = [&](int a, int k_a) { return ((k_a + ahead[a]) * 8 - O[a]) * invD[a]; };
+      double t_next[3], t_after[3];
+      for (int a = 0; a < 3; ++a) {
+        t_next[a] = bound(a, k[a]);
+        t_after[a] = bound(a, k[a] + step[a]);
+      }
       while (true) {
         const int a = argmin3(t_next);
         t = std::max(t_next[a], t) + kEps;
         if (t >= t1) return;
         const int before = k[a];
         k[a] += step[a];
-        t_next[a] = ((k[a] + ahead[a]) * 8 - O[a]) * invD[a];
+        t_next[a] = t_after[a];
+        t_after[a] = bound(a, k[a] + step[a]);
         if ((k[a] >> 3) != (before >> 3)) break;
         if (c->blocks[(k[0] & 7) | ((k[1] & 7) << 3) | ((k[2] & 7) << 6)]) break;
       }
       continue;
     }
     // Allocated block: integer stepping through it and through allocated neighbours.
-    double t_next[3];
-    for (int a = 0; a < 3; ++a) t_next[a] = ((q[a] + ahead[a]) - O[a]) * invD[a];
+    auto bound = [&](int a, int q_a) { return ((q_a + ahead[a]) - O[a]) * invD[a]; };
+    double t_next[3], t_after[3];
+    for (int a = 0; a < 3; ++a) {
+      t_next[a] = bound(a, q[a]);
+      t_after[a] = bound(a, q[a] + step[a]);
+    }
     int i = voxelInBlock(q[0], q[1], q[2]);
     while (true) {
       const int a = argmin3(t_next);
@@ -95,7 +115,8 @@ void walkCarve(const VoxelMap::Impl& m, const Eigen::Vector3d& o, const Eigen::V
       auto cross = [&](int e) {
         const int before = q[e];
         q[e] += step[e];
-        t_next[e] = ((q[e] + ahead[e]) - O[e]) * invD[e];
+        t_next[e] = t_after[e];
+        t_after[e] = bound(e, q[e] + step[e]);
         i += di[e];
         moved |= ((q[e] >> kBlockShift) != (before >> kBlockShift)) |
                  (((q[e] >> kChunkShift) != (before >> kChunkShift)) << 1);
