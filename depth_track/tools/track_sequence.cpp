@@ -154,6 +154,10 @@ int main(int argc, char** argv) {
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
   app.add_option("--voxel-size", voxel_size, "map voxel edge, m")->capture_default_str();
+  double occupancy_threshold = MapConfig{}.occupancy_threshold;
+  app.add_option("--occupancy-threshold", occupancy_threshold,
+                 "probability above which a map voxel counts as occupied")
+      ->capture_default_str();
   std::string map_region = "4x3x4";
   app.add_option("--map-region", map_region,
                  "map region around the start camera, WxHxD metres (camera at the middle of the "
@@ -218,6 +222,7 @@ int main(int argc, char** argv) {
       MapperConfig mc;
       mc.map.voxel_size_m = voxel_size;
       mc.map.model = carving == "on" ? UpdateModel::kProbabilistic : UpdateModel::kHitOnly;
+      mc.map.occupancy_threshold = occupancy_threshold;
       if (map_region == "unbounded") {
         mc.map.bounded = false;
       } else {
