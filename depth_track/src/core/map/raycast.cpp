@@ -299,7 +299,7 @@ void castRay(const Map& m, const Ray& r, double t, double t1, double cap, std::u
     int left2 = r.pos[2] ? 7 - (q[2] & 7) : (q[2] & 7);
     const std::uint64_t* occ = c->occ[bi].data();
     int lin = map_detail::voxelInBlock(q[0], q[1], q[2]);
-    enum { kGoOn, kDone, kEmptyBlock, kNextChunk };
+    enum { kGoOn, kDone, kEmptyBlock, kEmptyChunk };
     // Visits the current voxel, which the ray leaves at `te` along axis A, and steps to the next.
     auto step = [&](auto axis, double& tn, int& left) {
       constexpr int A = decltype(axis)::value;
@@ -337,8 +337,14 @@ void castRay(const Map& m, const Ray& r, double t, double t1, double cap, std::u
       // Into the next block along the axis.
       left = 7;
       lin -= 7 * dlin[A];
-      if ((q[A] & 63) == (r.pos[A] ? 0 : 63)) return kNextChunk;
-      bi += dir[A] << (3 * A);
+      if ((q[A] & 63) == (r.pos[A] ? 0 : 63)) {  // into the next chunk
+        c = m.chunkAt(q[0] >> map_detail::kChunkShift, q[1] >> map_detail::kChunkShift,
+                      q[2] >> map_detail::kChunkShift);
+        if (!c || c->occupied_blocks == 0) return kEmptyChunk;
+        bi = map_detail::blockInChunk(q[0], q[1], q[2]);
+      } else {
+        bi += dir[A] << (3 * A);
+      }
       if (c->n_occ[bi] == 0 || c->born[bi] > born_max) return kEmptyBlock;
       occ = c->occ[bi].data();
       return kGoOn;
@@ -353,8 +359,16 @@ void castRay(const Map& m, const Ray& r, double t, double t1, double cap, std::u
         status = step(std::integral_constant<int, 2>(), tn2, left2);
     } while (status == kGoOn);
     if (status == kDone) return;
-    const bool next_chunk = status == kNextChunk;
-    if (n > 0 && !next_chunk) return;  // the run met an empty block
+    if (n > 0) return;  // the run ended
+    // Skip the empty block or chunk q lies in at once.
+    const int skip = status == kEmptyBlock ? map_detail::kBlockShift : map_detail::kChunkShift;
+    double t_exit = inf;
+    for (int a = 0; a < 3; ++a) {
+      const int lo = (q[a] >> skip) << skip;
+      const double bound = r.pos[a] ? lo + (1 << skip) : lo;
+      t_exit = std::min(t_exit, (bound - r.O[a]) * r.invD[a]);
+    }
+    t = std::max(t_exit, t);
     t += kEps;
   }
 }
