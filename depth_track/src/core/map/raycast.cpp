@@ -112,13 +112,15 @@ bool viewBox(const Projector& P, const Eigen::Vector3d& lo_W, const Eigen::Vecto
     out->u0 = 0, out->u1 = K.width - 1, out->v0 = 0, out->v1 = K.height - 1;
     return true;
   }
-  // A pixel sees the box only if its centre lies in the hull of the projected corners; one pixel
-  // of margin absorbs rounding.
-  if (u_hi < -1.0 || v_hi < -1.0 || u_lo > K.width || v_lo > K.height) return false;
-  out->u0 = std::max(0, static_cast<int>(std::ceil(u_lo)) - 1);
-  out->u1 = std::min(K.width - 1, static_cast<int>(std::floor(u_hi)) + 1);
-  out->v0 = std::max(0, static_cast<int>(std::ceil(v_lo)) - 1);
-  out->v1 = std::min(K.height - 1, static_cast<int>(std::floor(v_hi)) + 1);
+  // A pixel ray meets the box only if the pixel centre lies in the hull of the projected corners;
+  // a thousandth of a pixel of margin absorbs rounding.
+  constexpr double kPx = 1e-3;
+  if (u_hi < -kPx || v_hi < -kPx || u_lo > K.width - 1 + kPx || v_lo > K.height - 1 + kPx)
+    return false;
+  out->u0 = std::max(0, static_cast<int>(std::ceil(u_lo - kPx)));
+  out->u1 = std::min(K.width - 1, static_cast<int>(std::floor(u_hi + kPx)));
+  out->v0 = std::max(0, static_cast<int>(std::ceil(v_lo - kPx)));
+  out->v1 = std::min(K.height - 1, static_cast<int>(std::floor(v_hi + kPx)));
   return out->u0 <= out->u1 && out->v0 <= out->v1;
 }
 
