@@ -457,11 +457,27 @@ std::size_t VoxelMap::memoryBytes() const {
 
 std::size_t VoxelMap::octreeMemoryBytes() const { return impl_->tree->memoryUsage(); }
 
+namespace {
+
+// Collapses, bottom-up, every node under `node` whose eight children are equal leaves (what
+// OcTree::prune does for the whole tree).
+void pruneSubtree(octomap::OcTree& tree, octomap::OcTreeNode* node) {
+  if (!tree.nodeHasChildren(node)) return;
+  for (unsigned i = 0; i < 8; ++i)
+    if (tree.nodeChildExists(node, i)) pruneSubtree(tree, tree.getNodeChild(node, i));
+  if (tree.isNodeCollapsible(node)) tree.pruneNode(node);
+}
+
+}  // namespace
+
 const octomap::OcTree& VoxelMap::flush() {
   Impl& m = *impl_;
   constexpr int kOffset = 32768;  // OctoMap's tree_max_val at 16 levels
+  // A chunk (64^3 voxels) is one OcTree node 6 levels above the leaves.
+  constexpr unsigned kChunkDepth = 16 - map_detail::kChunkShift;
   bool any = false;
   for (const auto& ch : m.chunks) {
+    bool chunk_dirty = false;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
       Block* b = ch->blocks[bi].get();
       if (!b || !b->any_dirty) continue;
@@ -480,7 +496,17 @@ const octomap::OcTree& VoxelMap::flush() {
         b->mask[w].dirty = 0;
       }
       b->any_dirty = false;
-      any = true;
+      any = chunk_dirty = true;
+    }
+    // Collapse the chunk's subtree as soon as it is written (clamped free space merges into
+    // larger leaves): the whole map written first and pruned after took about twice the memory
+    // of the pruned tree at its peak (1.18 GB for the furnished Room3 room at 5 mm).
+    if (chunk_dirty) {
+      const VoxelKey c = ch->coord * 64;
+      const octomap::OcTreeKey key(static_cast<octomap::key_type>(c.x() + kOffset),
+                                   static_cast<octomap::key_type>(c.y() + kOffset),
+                                   static_cast<octomap::key_type>(c.z() + kOffset));
+      if (octomap::OcTreeNode* node = m.tree->search(key, kChunkDepth)) pruneSubtree(*m.tree, node);
     }
   }
   if (any) m.tree->updateInnerOccupancy();
