@@ -1,4 +1,5 @@
-// Depth from the voxel map (thesis §3.14): one ray per pixel, first occupied voxel wins.
+// Depth from the voxel map (thesis §3.14): one ray per pixel; the first run of occupied voxels
+// along it gives the depth.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -249,12 +250,13 @@ struct Run {
   }
 };
 
-// HitDepth along the ray for t in [t, t1): marches voxel by voxel through blocks with an occupied
-// voxel (born by born_max), skipping chunks and blocks without one whole, to the first occupied
-// voxel, then averages its run. The same voxels and the same arithmetic as HitDepth fed by
-// Impl::walk, restructured for speed: integer stepping with the voxel's bit index kept in the
-// block, the block's occupancy words at hand, and the run's evidence read after the run is known.
-// Returns 0 when there is no hit.
+// The run HitDepth would average along the ray for t in [t, t1): marches voxel by voxel through
+// blocks with an occupied voxel (born by born_max), skipping chunks and blocks without one whole,
+// to the first occupied voxel, and on to the end of its run. The voxels Impl::walk<true, true>
+// visits (raycastReference; up to ties within kEps at voxel edges) and the same arithmetic,
+// restructured for speed: integer stepping with the voxel's bit index kept in the block, the
+// block's occupancy words at hand, chunk crossings looked up in place, and the run's evidence read
+// later (Run::depth). run.n = 0: no hit.
 template <class Map>
 void castRay(const Map& m, const Ray& r, double t, double t1, double cap, std::uint32_t born_max,
              Run& run) {
@@ -388,11 +390,12 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   if (static_cast<std::uint32_t>(min_age_frames) >= m.frame) return out;
   const std::uint32_t born_max = m.frame - static_cast<std::uint32_t>(min_age_frames);
 
-  // Per-pixel near/far depth bounds from the occupied voxels of each visible block (the tight box
-  // of the occupied voxels in each block octant, projected): a ray meets no occupied voxel
-  // before the nearest such box over its pixel or after the farthest one.
-  // Per-thread scratch kept between calls: fresh image-sized buffers cost page faults each call.
-  // (A reference, so that the TBB workers below see this thread's buffers, not their own.)
+  // Per-pixel near/far depth bounds from the occupied voxels of each visible block: the tight box
+  // of the occupied voxels in each block octant, and the depths at which each pixel ray enters
+  // and leaves it. A ray meets no occupied voxel before entering the nearest such box or after
+  // leaving the farthest one. The buffers are per-thread scratch kept between calls (fresh
+  // image-sized buffers cost page faults each call), used through a reference so that the TBB
+  // workers below see this thread's buffers, not their own.
   thread_local PixelBounds scratch;
   PixelBounds& bounds = scratch;
   bounds.w = w;
