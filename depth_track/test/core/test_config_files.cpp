@@ -42,6 +42,11 @@ TEST(ConfigFiles, OverridesLoadAndValidate) {
   EXPECT_EQ(cfg.pca.cell_size, 10);
   EXPECT_EQ(cfg.pca.normal_radius_cells, 2);
   EXPECT_TRUE(cfg.validate(PinholeIntrinsics{640, 480, 535.4, 539.2, 320.1, 247.6}).empty());
+  TrackerConfig d435;
+  loadTrackerParamsYaml(kConfigDir + "/d435.yaml", d435);
+  EXPECT_EQ(d435.pca.cell_size, 10);
+  EXPECT_EQ(d435.prefilter.type, PrefilterType::kBilateral);
+  EXPECT_TRUE(d435.validate(PinholeIntrinsics{640, 480, 385.0, 385.0, 319.5, 239.5}).empty());
 }
 
 TEST(ConfigFiles, BadValuesNameFileLineAndKey) {

@@ -21,14 +21,12 @@ struct RunResult {
   int tracked = 0, frames = 0;
 };
 
-RunResult trackRendered(const std::string& name, RegistrationMethod method,
-                        std::size_t max_frames = 0) {
+RunResult trackRendered(const std::string& name, const TrackerConfig& cfg,
+                        sim::NoiseModel noise_model = sim::NoiseModel::kL515) {
   const sim::RenderedRun run = sim::makeRun(name);
-  const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
-  TrackerConfig cfg;
-  cfg.registration.method = method;
+  const sim::NoiseConfig noise = sim::NoiseConfig::forModel(noise_model);
   Tracker tracker(run.intrinsics, cfg);
-  const std::size_t n = max_frames ? std::min(max_frames, run.size()) : run.size();
+  const std::size_t n = run.size();
   std::vector<Eigen::Isometry3d> est, gt;
   RunResult r;
   for (std::size_t i = 0; i < n; ++i) {
@@ -40,11 +38,18 @@ RunResult trackRendered(const std::string& name, RegistrationMethod method,
   }
   r.frames = static_cast<int>(n);
   r.errors = computeThesisErrors(est, gt);
-  std::printf("%s %s: max_err_deg=%.3f,%.3f,%.3f max_err_mm=%.2f,%.2f,%.2f end_drift_mm=%.2f\n",
-              name.c_str(), toString(method).c_str(), r.errors.max_err_deg.x(),
+  std::printf("%s %s %s: max_err_deg=%.3f,%.3f,%.3f max_err_mm=%.2f,%.2f,%.2f end_drift_mm=%.2f\n",
+              name.c_str(), sim::noiseModelName(noise_model).c_str(),
+              toString(cfg.registration.method).c_str(), r.errors.max_err_deg.x(),
               r.errors.max_err_deg.y(), r.errors.max_err_deg.z(), r.errors.max_err_mm.x(),
               r.errors.max_err_mm.y(), r.errors.max_err_mm.z(), r.errors.end_drift_mm);
   return r;
+}
+
+RunResult trackRendered(const std::string& name, RegistrationMethod method) {
+  TrackerConfig cfg;
+  cfg.registration.method = method;
+  return trackRendered(name, cfg);
 }
 
 std::string teddyDir() {
@@ -84,6 +89,18 @@ TEST(WholeRun, Rt3PitchSinusoid) {
   EXPECT_EQ(r.tracked, r.frames);
   EXPECT_LE(r.errors.max_err_deg.maxCoeff(), 1.0);
   EXPECT_LE(r.errors.max_err_mm.maxCoeff(), 15.0);
+}
+
+// D435-class stereo depth (sigma 3 cm at 2.5 m): with the default 5 px cells the tracker loses
+// the chair run within a second; config/d435.yaml tracks it. Measured 0.45 deg, 16.2 mm (the
+// thesis's L515 figures on this run: 0.43-0.90 deg, 7-17 mm).
+TEST(WholeRun, Xtest1ChairD435Preset) {
+  TrackerConfig cfg;
+  loadTrackerParamsYaml(std::string(DT_SOURCE_DIR) + "/../config/d435.yaml", cfg);
+  const RunResult r = trackRendered("xtest1_05_chair", cfg, sim::NoiseModel::kD435);
+  EXPECT_EQ(r.tracked, r.frames);
+  EXPECT_LE(r.errors.max_err_deg.maxCoeff(), 0.6);
+  EXPECT_LE(r.errors.max_err_mm.maxCoeff(), 25.0);
 }
 
 // Real Kinect data with motion-capture ground truth. Open3D frame-to-frame point-to-plane ICP
