@@ -129,7 +129,7 @@ bool viewBox(const Projector& P, const Eigen::Vector3d& lo_W, const Eigen::Vecto
 // than far[p] (near = +inf: none at all).
 struct PixelBounds {
   static constexpr float kMargin = 1e-4f;  // depth, m: covers float rounding (~1e-6 m)
-  int w = 0;
+  int w = 0;  // row stride, pixels: the image width rounded up to a multiple of 4
   std::vector<float> near, far;
   std::vector<float> inv[3];  // 1 / world components of the pixel rays d_W = R_W_C (x, y, 1)
   Eigen::Vector3d o_W;        // camera centre
@@ -145,15 +145,18 @@ struct PixelBounds {
     const __m128 hi2 = _mm_set1_ps(static_cast<float>(hi_W.z() - o_W.z()));
     const __m128 margin = _mm_set1_ps(kMargin), margin2 = _mm_set1_ps(2.0f * kMargin);
     for (int v = b.v0; v <= b.v1; ++v) {
-      float* nr = near.data() + static_cast<std::size_t>(v) * w;
-      float* fr = far.data() + static_cast<std::size_t>(v) * w;
       const std::size_t row = static_cast<std::size_t>(v) * w;
+      float* nr = near.data() + row;
+      float* fr = far.data() + row;
       const float* inv0 = inv[0].data() + row;
       const float* inv1 = inv[1].data() + row;
       const float* inv2 = inv[2].data() + row;
-      // Four pixels at a time (SSE2, part of x86-64), then one at a time.
-      auto slab = [&](__m128 i0, __m128 i1, __m128 i2, __m128 nr4, __m128 fr4, __m128* nr_out,
-                      __m128* fr_out) {
+      // Four pixels at a time (SSE2, part of x86-64), in groups aligned to the row start: the
+      // test is exact for any pixel, so the pixels of a group outside the rectangle lose nothing.
+      for (int u = b.u0 & ~3; u <= b.u1; u += 4) {
+        const __m128 i0 = _mm_loadu_ps(inv0 + u), i1 = _mm_loadu_ps(inv1 + u),
+                     i2 = _mm_loadu_ps(inv2 + u);
+        const __m128 nr4 = _mm_loadu_ps(nr + u), fr4 = _mm_loadu_ps(fr + u);
         const __m128 a0 = _mm_mul_ps(lo0, i0), c0 = _mm_mul_ps(hi0, i0);
         const __m128 a1 = _mm_mul_ps(lo1, i1), c1 = _mm_mul_ps(hi1, i1);
         const __m128 a2 = _mm_mul_ps(lo2, i2), c2 = _mm_mul_ps(hi2, i2);
@@ -164,23 +167,8 @@ struct PixelBounds {
         const __m128 meets = _mm_cmple_ps(t_in, _mm_add_ps(t_out, margin2));
         const __m128 nv = _mm_min_ps(nr4, _mm_sub_ps(t_in, margin));
         const __m128 fv = _mm_max_ps(fr4, _mm_add_ps(t_out, margin));
-        *nr_out = _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4));
-        *fr_out = _mm_or_ps(_mm_and_ps(meets, fv), _mm_andnot_ps(meets, fr4));
-      };
-      int u = b.u0;
-      for (; u + 3 <= b.u1; u += 4) {
-        __m128 n4, f4;
-        slab(_mm_loadu_ps(inv0 + u), _mm_loadu_ps(inv1 + u), _mm_loadu_ps(inv2 + u),
-             _mm_loadu_ps(nr + u), _mm_loadu_ps(fr + u), &n4, &f4);
-        _mm_storeu_ps(nr + u, n4);
-        _mm_storeu_ps(fr + u, f4);
-      }
-      for (; u <= b.u1; ++u) {
-        __m128 n1, f1;
-        slab(_mm_load_ss(inv0 + u), _mm_load_ss(inv1 + u), _mm_load_ss(inv2 + u),
-             _mm_load_ss(nr + u), _mm_load_ss(fr + u), &n1, &f1);
-        _mm_store_ss(nr + u, n1);
-        _mm_store_ss(fr + u, f1);
+        _mm_storeu_ps(nr + u, _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4)));
+        _mm_storeu_ps(fr + u, _mm_or_ps(_mm_and_ps(meets, fv), _mm_andnot_ps(meets, fr4)));
       }
     }
   }
@@ -398,8 +386,9 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // workers below see this thread's buffers, not their own.
   thread_local PixelBounds scratch;
   PixelBounds& bounds = scratch;
-  bounds.w = w;
-  bounds.near.assign(static_cast<std::size_t>(w) * h, std::numeric_limits<float>::infinity());
+  const int ws = (w + 3) & ~3;
+  bounds.w = ws;
+  bounds.near.assign(static_cast<std::size_t>(ws) * h, std::numeric_limits<float>::infinity());
   bounds.far.assign(bounds.near.size(), 0.0f);
   bounds.o_W = T_W_C.translation();
   {
@@ -412,8 +401,8 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
         const double base = R_W_C(a, 1) * (v - K.cy) / K.fy + R_W_C(a, 2);
         const double step = R_W_C(a, 0) / K.fx;
         const double first = base - step * K.cx;
-        float* dst = bounds.inv[a].data() + static_cast<std::size_t>(v) * w;
-        for (int u = 0; u < w; ++u) {
+        float* dst = bounds.inv[a].data() + static_cast<std::size_t>(v) * ws;
+        for (int u = 0; u < ws; ++u) {
           const float d = static_cast<float>(first + step * u);
           dst[u] = 1.0f / (d == 0.0f ? 1e-30f : d);  // no 0 * inf in the slab test
         }
@@ -465,7 +454,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // Marches pixel (u, v) into `run` (n = 0: no hit).
   auto march = [&](int u, int v, Run& run) {
     run.n = 0;
-    const std::size_t p = static_cast<std::size_t>(v) * w + u;
+    const std::size_t p = static_cast<std::size_t>(v) * ws + u;
     const float tn = bounds.near[p];
     if (tn == std::numeric_limits<float>::infinity()) return;
     const double t0 = std::max(range.min_m, static_cast<double>(tn));
