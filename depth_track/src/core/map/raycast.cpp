@@ -220,7 +220,7 @@ struct Ray {
 // The first run of occupied voxels met by a ray: the voxels (block, bit index) and their chords
 // [t[k], t[k + 1]] along the ray.
 struct Run {
-  static constexpr int kMax = 32;  // a run of at most 6 voxel lengths crosses at most 14 voxels
+  static constexpr int kMax = 16;  // a run of at most 6 voxel lengths crosses at most 14 voxels
   const Block* block[kMax];
   int lin[kMax];
   double t[kMax + 1];
@@ -471,17 +471,18 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     castRay(m, ray, t0, t1, run_cap_m / d.norm(), born_max, run);
   };
   // Pixels in square tiles: neighbouring rays meet the same blocks, which then stay in cache. The
-  // runs of a tile row are marched first and averaged after, so that the evidence they read
+  // 64 runs of a tile are marched first and averaged after, so that the evidence they read
   // (prefetched during the march) has arrived by then.
   auto band = [&](int ty) {
-    Run runs[kTile];
-    const int v_end = std::min(h, (ty + 1) * kTile);
+    Run runs[kTile * kTile];
+    const int v0 = ty * kTile, v_end = std::min(h, v0 + kTile);
     for (int u0 = 0; u0 < w; u0 += kTile) {
       const int u_end = std::min(w, u0 + kTile);
-      for (int v = ty * kTile; v < v_end; ++v) {
-        for (int u = u0; u < u_end; ++u) march(u, v, runs[u - u0]);
+      for (int v = v0; v < v_end; ++v)
+        for (int u = u0; u < u_end; ++u) march(u, v, runs[(v - v0) * kTile + u - u0]);
+      for (int v = v0; v < v_end; ++v) {
         float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
-        for (int u = u0; u < u_end; ++u) dst[u] = runs[u - u0].depth(m.l_occ);
+        for (int u = u0; u < u_end; ++u) dst[u] = runs[(v - v0) * kTile + u - u0].depth(m.l_occ);
       }
     }
   };
