@@ -1,11 +1,11 @@
 // Depth-from-volume speed: ms per 640x480 virtual depth image ray-cast from the voxel map on one
 // core (Release). Map: the rendered XTest1_05_Chair run with L515 noise fused at its ground-truth
-// poses (5 mm voxels, 4x3x4 m region); views: poses of the same run. The ray cast bounds each
-// pixel ray by its entry into and exit from the boxes of the occupied voxels in each visible
-// block octant, then marches it voxel by voxel, skipping empty chunks and blocks. Also the
-// reference ray cast without empty-space skipping (for scale), 2 threads, and the
-// half-resolution 320x240 cast that loop closure uses with raycast_downsample = 2. The target
-// for one core at 640x480 is median_cpu_ms <= 15.
+// poses (5 mm voxels, 4x3x4 m region); views: poses of the same run. The ray cast starts each
+// pixel ray where it enters the nearest of the boxes of the occupied voxels in each visible block
+// octant, then marches it voxel by voxel, skipping empty chunks and blocks. Also the reference
+// ray cast without empty-space skipping (for scale), 2 threads, and the half-resolution 320x240
+// cast that loop closure uses with raycast_downsample = 2. The target for one core at 640x480 is
+// median_cpu_ms <= 15.
 #include <benchmark/benchmark.h>
 
 #include <algorithm>

@@ -125,17 +125,16 @@ bool viewBox(const Projector& P, const Eigen::Vector3d& lo_W, const Eigen::Vecto
   return out->u0 <= out->u1 && out->v0 <= out->v1;
 }
 
-// Per-pixel depth bounds: no occupied voxel on a pixel's ray lies nearer than near[p] or farther
-// than far[p] (near = +inf: none at all).
+// Per-pixel near depth bound: no occupied voxel on a pixel's ray lies nearer than near[p]
+// (+inf: none on the ray at all).
 struct PixelBounds {
   static constexpr float kMargin = 1e-4f;  // depth, m: covers float rounding (~1e-6 m)
   int w = 0;  // row stride, pixels: the image width rounded up to a multiple of 4
-  std::vector<float> near, far;
+  std::vector<float> near;
   std::vector<float> inv[3];  // 1 / world components of the pixel rays d_W = R_W_C (x, y, 1)
   Eigen::Vector3d o_W;        // camera centre
-  // Lowers near and raises far, over the pixels of rectangle `b`, to the depths at which each
-  // pixel ray enters and leaves the world box [lo_W, hi_W] (slab test, in float with a margin),
-  // where it meets the box.
+  // Lowers near, over the pixels of rectangle `b`, to the depth at which each pixel ray enters
+  // the world box [lo_W, hi_W] where it meets the box (slab test, in float with a margin).
   void add(const BoxView& b, const Eigen::Vector3d& lo_W, const Eigen::Vector3d& hi_W) {
     const __m128 lo0 = _mm_set1_ps(static_cast<float>(lo_W.x() - o_W.x()));
     const __m128 hi0 = _mm_set1_ps(static_cast<float>(hi_W.x() - o_W.x()));
@@ -147,7 +146,6 @@ struct PixelBounds {
     for (int v = b.v0; v <= b.v1; ++v) {
       const std::size_t row = static_cast<std::size_t>(v) * w;
       float* nr = near.data() + row;
-      float* fr = far.data() + row;
       const float* inv0 = inv[0].data() + row;
       const float* inv1 = inv[1].data() + row;
       const float* inv2 = inv[2].data() + row;
@@ -156,7 +154,7 @@ struct PixelBounds {
       for (int u = b.u0 & ~3; u <= b.u1; u += 4) {
         const __m128 i0 = _mm_loadu_ps(inv0 + u), i1 = _mm_loadu_ps(inv1 + u),
                      i2 = _mm_loadu_ps(inv2 + u);
-        const __m128 nr4 = _mm_loadu_ps(nr + u), fr4 = _mm_loadu_ps(fr + u);
+        const __m128 nr4 = _mm_loadu_ps(nr + u);
         const __m128 a0 = _mm_mul_ps(lo0, i0), c0 = _mm_mul_ps(hi0, i0);
         const __m128 a1 = _mm_mul_ps(lo1, i1), c1 = _mm_mul_ps(hi1, i1);
         const __m128 a2 = _mm_mul_ps(lo2, i2), c2 = _mm_mul_ps(hi2, i2);
@@ -166,9 +164,7 @@ struct PixelBounds {
             _mm_min_ps(_mm_min_ps(_mm_max_ps(a0, c0), _mm_max_ps(a1, c1)), _mm_max_ps(a2, c2));
         const __m128 meets = _mm_cmple_ps(t_in, _mm_add_ps(t_out, margin2));
         const __m128 nv = _mm_min_ps(nr4, _mm_sub_ps(t_in, margin));
-        const __m128 fv = _mm_max_ps(fr4, _mm_add_ps(t_out, margin));
         _mm_storeu_ps(nr + u, _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4)));
-        _mm_storeu_ps(fr + u, _mm_or_ps(_mm_and_ps(meets, fv), _mm_andnot_ps(meets, fr4)));
       }
     }
   }
@@ -378,18 +374,18 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   if (static_cast<std::uint32_t>(min_age_frames) >= m.frame) return out;
   const std::uint32_t born_max = m.frame - static_cast<std::uint32_t>(min_age_frames);
 
-  // Per-pixel near/far depth bounds from the occupied voxels of each visible block: the tight box
-  // of the occupied voxels in each block octant, and the depths at which each pixel ray enters
-  // and leaves it. A ray meets no occupied voxel before entering the nearest such box or after
-  // leaving the farthest one. The buffers are per-thread scratch kept between calls (fresh
-  // image-sized buffers cost page faults each call), used through a reference so that the TBB
-  // workers below see this thread's buffers, not their own.
+  // Per-pixel near depth bounds from the occupied voxels of each visible block: the tight box of
+  // the occupied voxels in each block octant, and the depth at which each pixel ray enters it. A
+  // ray meets no occupied voxel before entering the nearest such box, and none at all if it
+  // meets no box. (A far bound from the box exits would stop the few rays that pass boxes
+  // without a hit sooner, but costs more to splat than it saves.) The buffers are per-thread
+  // scratch kept between calls (fresh image-sized buffers cost page faults each call), used
+  // through a reference so that the TBB workers below see this thread's buffers, not their own.
   thread_local PixelBounds scratch;
   PixelBounds& bounds = scratch;
   const int ws = (w + 3) & ~3;
   bounds.w = ws;
   bounds.near.assign(static_cast<std::size_t>(ws) * h, std::numeric_limits<float>::infinity());
-  bounds.far.assign(bounds.near.size(), 0.0f);
   bounds.o_W = T_W_C.translation();
   {
     // The ray components in double, then the reciprocal in float: relative error ~1e-7 even for
@@ -458,7 +454,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     const float tn = bounds.near[p];
     if (tn == std::numeric_limits<float>::infinity()) return;
     const double t0 = std::max(range.min_m, static_cast<double>(tn));
-    const double t1 = std::min(range.max_m, static_cast<double>(bounds.far[p]) + 1e-6);
+    const double t1 = range.max_m;
     if (t0 >= t1) return;
     const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
     Ray ray;

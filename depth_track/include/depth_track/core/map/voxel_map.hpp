@@ -122,10 +122,10 @@ class VoxelMap {
   /// along the optical axis of the evidence-weighted centre of the first run of consecutive
   /// occupied voxels along the pixel ray (run capped at 6 voxel lengths), between range.min_m
   /// and range.max_m. The occupied voxels of each visible block are boxed per 4x4x4-voxel octant
-  /// and each pixel ray is marched only between where it enters the nearest of those boxes and
-  /// leaves the farthest, skipping chunks and blocks without an occupied voxel. With
+  /// and each pixel ray is marched from where it enters the nearest of those boxes (not at all
+  /// if it meets none), skipping chunks and blocks without an occupied voxel. With
   /// min_age_frames > 0 only blocks first observed at least that many fused frames ago count (the
-  /// consolidated model, for loop closure). Thread-safe against other const calls (keeps ~6 MB of
+  /// consolidated model, for loop closure). Thread-safe against other const calls (keeps ~5 MB of
   /// scratch per calling thread for a 640x480 image); `threads` > 1 splits rows over TBB workers.
   DepthImage raycast(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
                      const DepthRange& range, int threads = 1, int min_age_frames = 0) const;
