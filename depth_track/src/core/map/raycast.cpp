@@ -3,7 +3,10 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#if (defined(__SSE2__) || defined(_M_X64)) && !defined(DT_RAYCAST_NO_SIMD)
+#define DT_RAYCAST_SSE2 1
 #include <xmmintrin.h>
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -136,13 +139,17 @@ struct PixelBounds {
   // Lowers near, over the pixels of rectangle `b`, to the depth at which each pixel ray enters
   // the world box [lo_W, hi_W] where it meets the box (slab test, in float with a margin).
   void add(const BoxView& b, const Eigen::Vector3d& lo_W, const Eigen::Vector3d& hi_W) {
-    const __m128 lo0 = _mm_set1_ps(static_cast<float>(lo_W.x() - o_W.x()));
-    const __m128 hi0 = _mm_set1_ps(static_cast<float>(hi_W.x() - o_W.x()));
-    const __m128 lo1 = _mm_set1_ps(static_cast<float>(lo_W.y() - o_W.y()));
-    const __m128 hi1 = _mm_set1_ps(static_cast<float>(hi_W.y() - o_W.y()));
-    const __m128 lo2 = _mm_set1_ps(static_cast<float>(lo_W.z() - o_W.z()));
-    const __m128 hi2 = _mm_set1_ps(static_cast<float>(hi_W.z() - o_W.z()));
+    const float l0 = static_cast<float>(lo_W.x() - o_W.x()),
+                h0 = static_cast<float>(hi_W.x() - o_W.x());
+    const float l1 = static_cast<float>(lo_W.y() - o_W.y()),
+                h1 = static_cast<float>(hi_W.y() - o_W.y());
+    const float l2 = static_cast<float>(lo_W.z() - o_W.z()),
+                h2 = static_cast<float>(hi_W.z() - o_W.z());
+#ifdef DT_RAYCAST_SSE2
+    const __m128 lo0 = _mm_set1_ps(l0), hi0 = _mm_set1_ps(h0), lo1 = _mm_set1_ps(l1),
+                 hi1 = _mm_set1_ps(h1), lo2 = _mm_set1_ps(l2), hi2 = _mm_set1_ps(h2);
     const __m128 margin = _mm_set1_ps(kMargin), margin2 = _mm_set1_ps(2.0f * kMargin);
+#endif
     for (int v = b.v0; v <= b.v1; ++v) {
       const std::size_t row = static_cast<std::size_t>(v) * w;
       float* nr = near.data() + row;
@@ -151,6 +158,7 @@ struct PixelBounds {
       const float* inv2 = inv[2].data() + row;
       // Four pixels at a time (SSE2, part of x86-64), in groups aligned to the row start: the
       // test is exact for any pixel, so the pixels of a group outside the rectangle lose nothing.
+#ifdef DT_RAYCAST_SSE2
       for (int u = b.u0 & ~3; u <= b.u1; u += 4) {
         const __m128 i0 = _mm_loadu_ps(inv0 + u), i1 = _mm_loadu_ps(inv1 + u),
                      i2 = _mm_loadu_ps(inv2 + u);
@@ -166,6 +174,16 @@ struct PixelBounds {
         const __m128 nv = _mm_min_ps(nr4, _mm_sub_ps(t_in, margin));
         _mm_storeu_ps(nr + u, _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4)));
       }
+#else
+      for (int u = b.u0 & ~3; u <= (b.u1 | 3); ++u) {
+        const float a0 = l0 * inv0[u], c0 = h0 * inv0[u], a1 = l1 * inv1[u], c1 = h1 * inv1[u],
+                    a2 = l2 * inv2[u], c2 = h2 * inv2[u];
+        const float t_in = std::max(std::max(std::min(a0, c0), std::min(a1, c1)), std::min(a2, c2));
+        const float t_out =
+            std::min(std::min(std::max(a0, c0), std::max(a1, c1)), std::max(a2, c2));
+        if (t_in <= t_out + 2.0f * kMargin) nr[u] = std::min(nr[u], t_in - kMargin);
+      }
+#endif
     }
   }
 };
