@@ -473,11 +473,10 @@ void pruneSubtree(octomap::OcTree& tree, octomap::OcTreeNode* node) {
 const octomap::OcTree& VoxelMap::flush() {
   Impl& m = *impl_;
   constexpr int kOffset = 32768;  // OctoMap's tree_max_val at 16 levels
-  // A chunk (64^3 voxels) is one OcTree node 6 levels above the leaves.
-  constexpr unsigned kChunkDepth = 16 - map_detail::kChunkShift;
+  // A block (8^3 voxels) is one OcTree node 3 levels above the leaves.
+  constexpr unsigned kBlockDepth = 16 - map_detail::kBlockShift;
   bool any = false;
   for (const auto& ch : m.chunks) {
-    bool chunk_dirty = false;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
       Block* b = ch->blocks[bi].get();
       if (!b || !b->any_dirty) continue;
@@ -496,17 +495,16 @@ const octomap::OcTree& VoxelMap::flush() {
         b->mask[w].dirty = 0;
       }
       b->any_dirty = false;
-      any = chunk_dirty = true;
-    }
-    // Collapse the chunk's subtree as soon as it is written (clamped free space merges into
-    // larger leaves): the whole map written first and pruned after took about twice the memory
-    // of the pruned tree at its peak (1.18 GB for the furnished Room3 room at 5 mm).
-    if (chunk_dirty) {
-      const VoxelKey c = ch->coord * 64;
-      const octomap::OcTreeKey key(static_cast<octomap::key_type>(c.x() + kOffset),
-                                   static_cast<octomap::key_type>(c.y() + kOffset),
-                                   static_cast<octomap::key_type>(c.z() + kOffset));
-      if (octomap::OcTreeNode* node = m.tree->search(key, kChunkDepth)) pruneSubtree(*m.tree, node);
+      any = true;
+      // Collapse the block's subtree as soon as it is written (clamped free space merges into
+      // larger leaves): writing the whole map first and pruning after took about twice the
+      // memory of the pruned tree at its peak (1.18 GB for the furnished Room3 room at 5 mm).
+      // Only the block is visited, so a periodic flush of a few changed blocks stays cheap;
+      // merges above the block level are left to save()'s prune().
+      const octomap::OcTreeKey key(static_cast<octomap::key_type>(base.x() + kOffset),
+                                   static_cast<octomap::key_type>(base.y() + kOffset),
+                                   static_cast<octomap::key_type>(base.z() + kOffset));
+      if (octomap::OcTreeNode* node = m.tree->search(key, kBlockDepth)) pruneSubtree(*m.tree, node);
     }
   }
   if (any) m.tree->updateInnerOccupancy();
