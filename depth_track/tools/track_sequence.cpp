@@ -151,6 +151,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--cl-step", cl_step, "loop-closure attempt every n-th frame (CLStep)")
       ->capture_default_str();
+  int cl_downsample = LoopClosureConfig{}.raycast_downsample;
+  app.add_option("--cl-downsample", cl_downsample,
+                 "loop closure ray-casts the virtual image at 1/n resolution: 1 | 2")
+      ->check(CLI::IsMember({1, 2}))
+      ->capture_default_str();
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
   app.add_option("--voxel-size", voxel_size, "map voxel edge, m")->capture_default_str();
@@ -238,6 +243,7 @@ int main(int argc, char** argv) {
       }
       mc.loop.enabled = loop_closure == "on" && fuse_poses.empty();
       mc.loop.cl_step = cl_step;
+      mc.loop.raycast_downsample = cl_downsample;
       mc.range = range;
       if (!fuse_poses.empty()) {
         fuse_traj = readTumTrajectory(fuse_poses);
