@@ -5,7 +5,7 @@
 #include <tbb/task_arena.h>
 #if (defined(__SSE2__) || defined(_M_X64)) && !defined(DT_RAYCAST_NO_SIMD)
 #define DT_RAYCAST_SSE2 1
-#include <xmmintrin.h>
+#include <emmintrin.h>
 #endif
 
 #include <algorithm>
@@ -188,40 +188,107 @@ struct PixelBounds {
   }
 };
 
+// The camera in float, for viewOctant.
+struct OctantProjector {
+  float fx, fy, cx, cy, zmin, zmax;
+  int width, height;
+  float step[3][3];  // step[a]: camera-frame offset of one voxel along world axis a
+};
+
+#ifdef DT_RAYCAST_SSE2
+// viewBox for the small boxes of block octants, in float and four box corners per instruction.
+// The corners are offset from the block's camera-frame corner (from double) by a few voxel steps,
+// so they are off by ~1e-7 m: ~1e-4 px, within the 1e-3 px margin (a pixel it drops is missed
+// by the box), and the z range test keeps 1e-4 m of margin (a box kept in vain changes nothing).
+bool viewOctant(const OctantProjector& P, const float base_C[3], int nx, int ny, int nz,
+                BoxView* out) {
+  // Lanes hold corners (0, 0), (nx, 0), (0, ny), (nx, ny) in world x, y; Q0 at z offset 0, Q1 at
+  // nz.
+  const __m128 mx = _mm_set_ps(1.0f, 0.0f, 1.0f, 0.0f), my = _mm_set_ps(1.0f, 1.0f, 0.0f, 0.0f);
+  const float fnx = static_cast<float>(nx), fny = static_cast<float>(ny),
+              fnz = static_cast<float>(nz);
+  __m128 c0[3], c1[3];
+  for (int k = 0; k < 3; ++k) {
+    c0[k] = _mm_add_ps(_mm_set1_ps(base_C[k]),
+                       _mm_add_ps(_mm_mul_ps(mx, _mm_set1_ps(fnx * P.step[0][k])),
+                                  _mm_mul_ps(my, _mm_set1_ps(fny * P.step[1][k]))));
+    c1[k] = _mm_add_ps(c0[k], _mm_set1_ps(fnz * P.step[2][k]));
+  }
+  const __m128 z_lo4 = _mm_min_ps(c0[2], c1[2]), z_hi4 = _mm_max_ps(c0[2], c1[2]);
+  if (_mm_movemask_ps(_mm_cmpge_ps(z_hi4, _mm_set1_ps(P.zmin - 1e-4f))) == 0 ||
+      _mm_movemask_ps(_mm_cmple_ps(z_lo4, _mm_set1_ps(P.zmax + 1e-4f))) == 0)
+    return false;
+  if (_mm_movemask_ps(_mm_cmple_ps(z_lo4, _mm_set1_ps(1e-6f))) != 0) {
+    out->u0 = 0, out->u1 = P.width - 1, out->v0 = 0, out->v1 = P.height - 1;
+    return true;
+  }
+  const __m128 one = _mm_set1_ps(1.0f);
+  const __m128 iz0 = _mm_div_ps(one, c0[2]), iz1 = _mm_div_ps(one, c1[2]);
+  const __m128 x0 = _mm_mul_ps(c0[0], iz0), x1 = _mm_mul_ps(c1[0], iz1);
+  const __m128 y0 = _mm_mul_ps(c0[1], iz0), y1 = _mm_mul_ps(c1[1], iz1);
+  // Lane-wise extremes, then across lanes (maxima as minima of negatives): x/z, y/z low, high.
+  const __m128 sign = _mm_set1_ps(-0.0f);
+  __m128 a = _mm_min_ps(x0, x1), b = _mm_min_ps(y0, y1);
+  __m128 c = _mm_xor_ps(_mm_max_ps(x0, x1), sign), d = _mm_xor_ps(_mm_max_ps(y0, y1), sign);
+  _MM_TRANSPOSE4_PS(a, b, c, d);
+  float r[4];
+  _mm_storeu_ps(r, _mm_min_ps(_mm_min_ps(a, b), _mm_min_ps(c, d)));
+  const float u_lo = P.fx * r[0] + P.cx, v_lo = P.fy * r[1] + P.cy;
+  const float u_hi = P.fx * -r[2] + P.cx, v_hi = P.fy * -r[3] + P.cy;
+  constexpr float kPx = 1e-3f;
+  if (u_hi < -kPx || v_hi < -kPx || u_lo > P.width - 1 + kPx || v_lo > P.height - 1 + kPx)
+    return false;
+  // Ceil and floor as integers (clamped first, so the conversions stay in range).
+  out->u0 = std::max(0, -map_detail::fastFloor(-(std::max(u_lo, -1.0f) - kPx)));
+  out->u1 = std::min(P.width - 1, map_detail::fastFloor(std::min(u_hi, float(P.width)) + kPx));
+  out->v0 = std::max(0, -map_detail::fastFloor(-(std::max(v_lo, -1.0f) - kPx)));
+  out->v1 = std::min(P.height - 1, map_detail::fastFloor(std::min(v_hi, float(P.height)) + kPx));
+  return out->u0 <= out->u1 && out->v0 <= out->v1;
+}
+#endif
+
 // Splats the occupied voxels of block `bi` of chunk `c` into the bounds, as the tight boxes of its
-// occupied voxels in each of its eight 4x4x4-voxel octants.
-void splatBlock(const Projector& P, const Chunk& c, int bi, const Eigen::Vector3d& block_lo_W,
-                double s, PixelBounds* bounds) {
+// occupied voxels in each of its eight 4x4x4-voxel octants. The block's lower corner: block_lo_W
+// in the world, block_lo_C in the camera frame (for viewOctant).
+void splatBlock([[maybe_unused]] const Projector& P, [[maybe_unused]] const OctantProjector& OP,
+                const Chunk& c, int bi, const Eigen::Vector3d& block_lo_W,
+                [[maybe_unused]] const float block_lo_C[3], double s, PixelBounds* bounds) {
   const auto& occ = c.occ[bi];  // word z holds bits x | y << 3
   for (int oz = 0; oz < 2; ++oz)
     for (int oy = 0; oy < 2; ++oy)
       for (int ox = 0; ox < 2; ++ox) {
         const std::uint64_t quad = std::uint64_t{0x0F0F0F0F} << (4 * ox + 32 * oy);
-        int z_lo = 8, z_hi = -1;
-        std::uint64_t xy = 0;
-        for (int z = 4 * oz; z < 4 * oz + 4; ++z) {
-          const std::uint64_t b = occ[z] & quad;
-          if (!b) continue;
-          xy |= b;
-          z_lo = std::min(z_lo, z);
-          z_hi = z;
-        }
+        // The octant's four z words; its z, y and x extents without branches.
+        const std::uint64_t w0 = occ[4 * oz] & quad, w1 = occ[4 * oz + 1] & quad,
+                            w2 = occ[4 * oz + 2] & quad, w3 = occ[4 * oz + 3] & quad;
+        const std::uint64_t xy = w0 | w1 | w2 | w3;
         if (!xy) continue;
-        std::uint32_t xs = 0;  // x bits over all rows
-        int y_lo = 8, y_hi = -1;
-        for (int y = 0; y < 8; ++y) {
-          const std::uint32_t row = static_cast<std::uint32_t>(xy >> (8 * y)) & 0xFFu;
-          if (!row) continue;
-          xs |= row;
-          y_lo = std::min(y_lo, y);
-          y_hi = y;
-        }
+        const unsigned zs = unsigned{w0 != 0} | unsigned{w1 != 0} << 1 | unsigned{w2 != 0} << 2 |
+                            unsigned{w3 != 0} << 3;
+        const int z_lo = 4 * oz + __builtin_ctz(zs), z_hi = 4 * oz + 31 - __builtin_clz(zs);
+        constexpr std::uint64_t k7F = 0x7F7F7F7F7F7F7F7Full, k80 = 0x8080808080808080ull;
+        const std::uint64_t rows = (((xy & k7F) + k7F) | xy) & k80;  // bit 7 of each non-zero row
+        const int y_lo = __builtin_ctzll(rows) >> 3, y_hi = (63 - __builtin_clzll(rows)) >> 3;
+        std::uint64_t xr = xy | xy >> 32;  // x bits over all rows
+        xr |= xr >> 16;
+        xr |= xr >> 8;
+        const unsigned xs = static_cast<unsigned>(xr & 0xFFu);
         const int x_lo = __builtin_ctz(xs), x_hi = 31 - __builtin_clz(xs);
+        const int n[3] = {x_hi - x_lo + 1, y_hi - y_lo + 1, z_hi - z_lo + 1};
+        const int first[3] = {x_lo, y_lo, z_lo};
+        Eigen::Vector3d lo, ext;
+        for (int k = 0; k < 3; ++k) lo[k] = block_lo_W[k] + first[k] * s, ext[k] = n[k] * s;
         BoxView bv;
-        const Eigen::Vector3d lo = block_lo_W + Eigen::Vector3d(x_lo, y_lo, z_lo) * s;
-        const Eigen::Vector3d ext =
-            Eigen::Vector3d(x_hi - x_lo + 1, y_hi - y_lo + 1, z_hi - z_lo + 1) * s;
-        if (viewBox(P, lo, ext, &bv)) bounds->add(bv, lo, lo + ext);
+#ifdef DT_RAYCAST_SSE2
+        float base_C[3];
+        for (int k = 0; k < 3; ++k)
+          base_C[k] =
+              block_lo_C[k] + x_lo * OP.step[0][k] + y_lo * OP.step[1][k] + z_lo * OP.step[2][k];
+        if (!viewOctant(OP, base_C, n[0], n[1], n[2], &bv)) continue;
+#else
+        if (!viewBox(P, lo, ext, &bv)) continue;
+#endif
+        bounds->add(bv, lo, lo + ext);
       }
 }
 
@@ -416,10 +483,25 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
         const double step = R_W_C(a, 0) / K.fx;
         const double first = base - step * K.cx;
         float* dst = bounds.inv[a].data() + static_cast<std::size_t>(v) * ws;
+#ifdef DT_RAYCAST_SSE2
+        // The same arithmetic four pixels at a time (ws is a multiple of 4); d = 0 -> 1e-30 as
+        // below.
+        const __m128d first2 = _mm_set1_pd(first), step2 = _mm_set1_pd(step);
+        const __m128 tiny = _mm_set1_ps(1e-30f), one = _mm_set1_ps(1.0f);
+        for (int u = 0; u < ws; u += 4) {
+          const __m128d u01 = _mm_set_pd(u + 1, u), u23 = _mm_set_pd(u + 3, u + 2);
+          const __m128 d = _mm_movelh_ps(_mm_cvtpd_ps(_mm_add_pd(first2, _mm_mul_pd(step2, u01))),
+                                         _mm_cvtpd_ps(_mm_add_pd(first2, _mm_mul_pd(step2, u23))));
+          const __m128 zero = _mm_cmpeq_ps(d, _mm_setzero_ps());
+          _mm_storeu_ps(dst + u,
+                        _mm_div_ps(one, _mm_or_ps(_mm_andnot_ps(zero, d), _mm_and_ps(zero, tiny))));
+        }
+#else
         for (int u = 0; u < ws; ++u) {
           const float d = static_cast<float>(first + step * u);
           dst[u] = 1.0f / (d == 0.0f ? 1e-30f : d);  // no 0 * inf in the slab test
         }
+#endif
       }
     }
   }
@@ -445,19 +527,44 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   frustum.n[1] = Eigen::Vector2d(-1.0, (w - K.cx) / K.fx).normalized();     // u <= w
   frustum.n[2] = Eigen::Vector2d(1.0, -(-1.0 - K.cy) / K.fy).normalized();  // v >= -1
   frustum.n[3] = Eigen::Vector2d(-1.0, (h - K.cy) / K.fy).normalized();     // v <= h
-  // Camera-frame centre of the block at lo_W: R_C_W lo_W + this.
-  const Eigen::Vector3d c_C_offset = P.R_C_W * Eigen::Vector3d::Constant(0.5 * block_m) + P.t_C_W;
+  // Camera-frame centre of a block from its camera-frame lower corner: lo_C + this.
+  const Eigen::Vector3d c_C_half = P.R_C_W * Eigen::Vector3d::Constant(0.5 * block_m);
+  OctantProjector OP;
+  OP.fx = static_cast<float>(K.fx), OP.fy = static_cast<float>(K.fy);
+  OP.cx = static_cast<float>(K.cx), OP.cy = static_cast<float>(K.cy);
+  OP.zmin = static_cast<float>(range.min_m), OP.zmax = static_cast<float>(range.max_m);
+  OP.width = w, OP.height = h;
+  for (int a = 0; a < 3; ++a)
+    for (int k = 0; k < 3; ++k) OP.step[a][k] = static_cast<float>(P.R_C_W(k, a) * m.s);
+  // Per chunk: its blocks with an occupied voxel old enough (without a branch per block), those
+  // that may be seen (their occupancy lines fetched meanwhile, all at once), then their splats.
+  int cand[map_detail::kChunkBlocks], seen[map_detail::kChunkBlocks];
+  float seen_lo_C[map_detail::kChunkBlocks][3];
   for (const auto& ch : m.chunks) {
     if (ch->occupied_blocks == 0) continue;
     BoxView cv;
     const Eigen::Vector3d chunk_lo = ch->coord.cast<double>() * chunk_m;
     if (!viewBox(P, chunk_lo, Eigen::Vector3d::Constant(chunk_m), &cv)) continue;
+    int n_cand = 0, n_seen = 0;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
-      if (ch->n_occ[bi] == 0 || ch->born[bi] > born_max) continue;
+      cand[n_cand] = bi;
+      n_cand += (ch->n_occ[bi] != 0) & (ch->born[bi] <= born_max);
+    }
+    for (int k = 0; k < n_cand; ++k) {
+      const int bi = cand[k];
       const Eigen::Vector3d lo =
           chunk_lo + Eigen::Vector3d(bi & 7, (bi >> 3) & 7, bi >> 6) * block_m;
-      if (!frustum.mayMeet(P.R_C_W * lo + c_C_offset)) continue;
-      splatBlock(P, *ch, bi, lo, m.s, &bounds);
+      const Eigen::Vector3d lo_C = P.R_C_W * lo + P.t_C_W;
+      if (!frustum.mayMeet(lo_C + c_C_half)) continue;
+      __builtin_prefetch(ch->occ[bi].data());
+      for (int a = 0; a < 3; ++a) seen_lo_C[n_seen][a] = static_cast<float>(lo_C[a]);
+      seen[n_seen++] = bi;
+    }
+    for (int k = 0; k < n_seen; ++k) {
+      const int bi = seen[k];
+      const Eigen::Vector3d lo =
+          chunk_lo + Eigen::Vector3d(bi & 7, (bi >> 3) & 7, bi >> 6) * block_m;
+      splatBlock(P, OP, *ch, bi, lo, seen_lo_C[k], m.s, &bounds);
     }
   }
 
@@ -465,6 +572,10 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   const Eigen::Vector3d O = T_W_C.translation() * m.inv_s;
   const double run_cap_m = kRunCapVoxels * m.s;
   const double inf = std::numeric_limits<double>::infinity();
+  // Camera-frame ray components per column and row (as raycastReference computes them).
+  std::vector<double> ray_x(w), ray_y(h);
+  for (int u = 0; u < w; ++u) ray_x[u] = (u - K.cx) / K.fx;
+  for (int v = 0; v < h; ++v) ray_y[v] = (v - K.cy) / K.fy;
   // Marches pixel (u, v) into `run` (n = 0: no hit).
   auto march = [&](int u, int v, Run& run) {
     run.n = 0;
@@ -474,7 +585,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     const double t0 = std::max(range.min_m, static_cast<double>(tn));
     const double t1 = range.max_m;
     if (t0 >= t1) return;
-    const Eigen::Vector3d d = R * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+    const Eigen::Vector3d d = R * Eigen::Vector3d(ray_x[u], ray_y[v], 1.0);
     Ray ray;
     for (int a = 0; a < 3; ++a) {
       ray.O[a] = O[a];
