@@ -132,10 +132,17 @@ bool viewBox(const Projector& P, const Eigen::Vector3d& lo_W, const Eigen::Vecto
 // (+inf: none on the ray at all).
 struct PixelBounds {
   static constexpr float kMargin = 1e-4f;  // depth, m: covers float rounding (~1e-6 m)
-  int w = 0;  // row stride, pixels: the image width rounded up to a multiple of 4
-  std::vector<float> near;
-  std::vector<float> inv[3];  // 1 / world components of the pixel rays d_W = R_W_C (x, y, 1)
-  Eigen::Vector3d o_W;        // camera centre
+  // Four pixels of a row side by side, all a splat reads and writes of them in one cache line.
+  struct alignas(64) Group {
+    float inv[3][4];  // 1 / world components of the pixel rays d_W = R_W_C (x, y, 1)
+    float near[4];
+  };
+  int gw = 0;  // groups per row: the image width rounded up to a multiple of 4, over 4
+  std::vector<Group> g;
+  Eigen::Vector3d o_W;  // camera centre
+  float near(int u, int v) const {
+    return g[static_cast<std::size_t>(v) * gw + (u >> 2)].near[u & 3];
+  }
   // Lowers near, over the pixels of rectangle `b`, to the depth at which each pixel ray enters
   // the world box [lo_W, hi_W] where it meets the box (slab test, in float with a margin).
   void add(const BoxView& b, const Eigen::Vector3d& lo_W, const Eigen::Vector3d& hi_W) {
@@ -151,18 +158,14 @@ struct PixelBounds {
     const __m128 margin = _mm_set1_ps(kMargin), margin2 = _mm_set1_ps(2.0f * kMargin);
 #endif
     for (int v = b.v0; v <= b.v1; ++v) {
-      const std::size_t row = static_cast<std::size_t>(v) * w;
-      float* nr = near.data() + row;
-      const float* inv0 = inv[0].data() + row;
-      const float* inv1 = inv[1].data() + row;
-      const float* inv2 = inv[2].data() + row;
-      // Four pixels at a time (SSE2, part of x86-64), in groups aligned to the row start: the
-      // test is exact for any pixel, so the pixels of a group outside the rectangle lose nothing.
+      Group* row = g.data() + static_cast<std::size_t>(v) * gw;
+      // Four pixels at a time (SSE2, part of x86-64), a group at a time: the test is exact for
+      // any pixel, so the pixels of a group outside the rectangle lose nothing.
+      for (Group* q = row + (b.u0 >> 2); q <= row + (b.u1 >> 2); ++q) {
 #ifdef DT_RAYCAST_SSE2
-      for (int u = b.u0 & ~3; u <= b.u1; u += 4) {
-        const __m128 i0 = _mm_loadu_ps(inv0 + u), i1 = _mm_loadu_ps(inv1 + u),
-                     i2 = _mm_loadu_ps(inv2 + u);
-        const __m128 nr4 = _mm_loadu_ps(nr + u);
+        const __m128 i0 = _mm_load_ps(q->inv[0]), i1 = _mm_load_ps(q->inv[1]),
+                     i2 = _mm_load_ps(q->inv[2]);
+        const __m128 nr4 = _mm_load_ps(q->near);
         const __m128 a0 = _mm_mul_ps(lo0, i0), c0 = _mm_mul_ps(hi0, i0);
         const __m128 a1 = _mm_mul_ps(lo1, i1), c1 = _mm_mul_ps(hi1, i1);
         const __m128 a2 = _mm_mul_ps(lo2, i2), c2 = _mm_mul_ps(hi2, i2);
@@ -172,18 +175,20 @@ struct PixelBounds {
             _mm_min_ps(_mm_min_ps(_mm_max_ps(a0, c0), _mm_max_ps(a1, c1)), _mm_max_ps(a2, c2));
         const __m128 meets = _mm_cmple_ps(t_in, _mm_add_ps(t_out, margin2));
         const __m128 nv = _mm_min_ps(nr4, _mm_sub_ps(t_in, margin));
-        _mm_storeu_ps(nr + u, _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4)));
-      }
+        _mm_store_ps(q->near, _mm_or_ps(_mm_and_ps(meets, nv), _mm_andnot_ps(meets, nr4)));
 #else
-      for (int u = b.u0 & ~3; u <= (b.u1 | 3); ++u) {
-        const float a0 = l0 * inv0[u], c0 = h0 * inv0[u], a1 = l1 * inv1[u], c1 = h1 * inv1[u],
-                    a2 = l2 * inv2[u], c2 = h2 * inv2[u];
-        const float t_in = std::max(std::max(std::min(a0, c0), std::min(a1, c1)), std::min(a2, c2));
-        const float t_out =
-            std::min(std::min(std::max(a0, c0), std::max(a1, c1)), std::max(a2, c2));
-        if (t_in <= t_out + 2.0f * kMargin) nr[u] = std::min(nr[u], t_in - kMargin);
-      }
+        for (int k = 0; k < 4; ++k) {
+          const float i0 = q->inv[0][k], i1 = q->inv[1][k], i2 = q->inv[2][k];
+          const float a0 = l0 * i0, c0 = h0 * i0, a1 = l1 * i1, c1 = h1 * i1, a2 = l2 * i2,
+                      c2 = h2 * i2;
+          const float t_in =
+              std::max(std::max(std::min(a0, c0), std::min(a1, c1)), std::min(a2, c2));
+          const float t_out =
+              std::min(std::min(std::max(a0, c0), std::max(a1, c1)), std::max(a2, c2));
+          if (t_in <= t_out + 2.0f * kMargin) q->near[k] = std::min(q->near[k], t_in - kMargin);
+        }
 #endif
+      }
     }
   }
 };
@@ -468,38 +473,41 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // through a reference so that the TBB workers below see this thread's buffers, not their own.
   thread_local PixelBounds scratch;
   PixelBounds& bounds = scratch;
-  const int ws = (w + 3) & ~3;
-  bounds.w = ws;
-  bounds.near.assign(static_cast<std::size_t>(ws) * h, std::numeric_limits<float>::infinity());
+  const int gw = (w + 3) / 4;
+  bounds.gw = gw;
+  bounds.g.resize(static_cast<std::size_t>(gw) * h);
   bounds.o_W = T_W_C.translation();
   {
     // The ray components in double, then the reciprocal in float: relative error ~1e-7 even for
     // rays nearly parallel to an axis plane.
     const Eigen::Matrix3d& R_W_C = T_W_C.linear();
     for (int a = 0; a < 3; ++a) {
-      bounds.inv[a].resize(bounds.near.size());
       for (int v = 0; v < h; ++v) {
         const double base = R_W_C(a, 1) * (v - K.cy) / K.fy + R_W_C(a, 2);
         const double step = R_W_C(a, 0) / K.fx;
         const double first = base - step * K.cx;
-        float* dst = bounds.inv[a].data() + static_cast<std::size_t>(v) * ws;
+        PixelBounds::Group* row = bounds.g.data() + static_cast<std::size_t>(v) * gw;
 #ifdef DT_RAYCAST_SSE2
-        // The same arithmetic four pixels at a time (ws is a multiple of 4); d = 0 -> 1e-30 as
+        // The same arithmetic four pixels at a time (whole groups); d = 0 -> 1e-30 as
         // below.
         const __m128d first2 = _mm_set1_pd(first), step2 = _mm_set1_pd(step);
         const __m128 tiny = _mm_set1_ps(1e-30f), one = _mm_set1_ps(1.0f);
-        for (int u = 0; u < ws; u += 4) {
+        const __m128 far = _mm_set1_ps(std::numeric_limits<float>::infinity());
+        for (int u = 0; u < 4 * gw; u += 4) {
           const __m128d u01 = _mm_set_pd(u + 1, u), u23 = _mm_set_pd(u + 3, u + 2);
           const __m128 d = _mm_movelh_ps(_mm_cvtpd_ps(_mm_add_pd(first2, _mm_mul_pd(step2, u01))),
                                          _mm_cvtpd_ps(_mm_add_pd(first2, _mm_mul_pd(step2, u23))));
           const __m128 zero = _mm_cmpeq_ps(d, _mm_setzero_ps());
-          _mm_storeu_ps(dst + u,
-                        _mm_div_ps(one, _mm_or_ps(_mm_andnot_ps(zero, d), _mm_and_ps(zero, tiny))));
+          _mm_store_ps(row[u >> 2].inv[a],
+                       _mm_div_ps(one, _mm_or_ps(_mm_andnot_ps(zero, d), _mm_and_ps(zero, tiny))));
+          if (a == 0) _mm_store_ps(row[u >> 2].near, far);
         }
 #else
-        for (int u = 0; u < ws; ++u) {
+        for (int u = 0; u < 4 * gw; ++u) {
           const float d = static_cast<float>(first + step * u);
-          dst[u] = 1.0f / (d == 0.0f ? 1e-30f : d);  // no 0 * inf in the slab test
+          row[u >> 2].inv[a][u & 3] =
+              1.0f / (d == 0.0f ? 1e-30f : d);  // no 0 * inf in the slab test
+          row[u >> 2].near[u & 3] = std::numeric_limits<float>::infinity();
         }
 #endif
       }
@@ -579,8 +587,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // Marches pixel (u, v) into `run` (n = 0: no hit).
   auto march = [&](int u, int v, Run& run) {
     run.n = 0;
-    const std::size_t p = static_cast<std::size_t>(v) * ws + u;
-    const float tn = bounds.near[p];
+    const float tn = bounds.near(u, v);
     if (tn == std::numeric_limits<float>::infinity()) return;
     const double t0 = std::max(range.min_m, static_cast<double>(tn));
     const double t1 = range.max_m;
