@@ -114,7 +114,9 @@ struct VoxelMap::Impl {
   // chunks and blocks without an occupied voxel instead (and may visit voxels of unallocated
   // blocks of a chunk when kNoSkip). f(chunk, block index, voxel index, t_in, t_out) returns
   // true to stop. With kOccupiedOnly, blocks allocated after frame `born_max` count as empty.
-  // Returns false when the ray ran out.
+  // Returns false when the ray ran out. A plain march that re-derives the voxel and its chunk at
+  // every step: the reference the fast traversals are checked against (raycastReference uses
+  // walk<true, true> for VoxelMap::raycast, test_fusion walk<false> for carving's walkCarve).
   template <bool kOccupiedOnly, bool kNoSkip = false, class F>
   bool walk(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0, double t1, F&& f,
             std::uint32_t born_max = std::numeric_limits<std::uint32_t>::max()) const {
@@ -150,30 +152,6 @@ struct VoxelMap::Impl {
         if (te < t_exit) t_exit = te;
       }
       t_exit = std::max(t_exit, t);
-      if (kOccupiedOnly && !kNoSkip && shift == 0) {
-        // Inside an occupied block: integer stepping voxel to voxel (exit distances updated by
-        // increments) until the ray leaves the block, instead of re-deriving the voxel and the
-        // chunk at every step. raycastReference (kNoSkip) keeps the plain march to check it.
-        int q[3] = {v[0], v[1], v[2]};
-        double t_next[3], t_step[3];
-        for (int a = 0; a < 3; ++a) {
-          t_next[a] = ((pos[a] ? q[a] + 1 : q[a]) - O[a]) * invD[a];
-          t_step[a] = std::abs(invD[a]);
-        }
-        while (true) {
-          const int a = t_next[0] < t_next[1] ? (t_next[0] < t_next[2] ? 0 : 2)
-                                              : (t_next[1] < t_next[2] ? 1 : 2);
-          const double te = std::max(t_next[a], t);
-          if (f(*c, bi, map_detail::voxelInBlock(q[0], q[1], q[2]), t, std::min(te, t1)))
-            return true;
-          t = te + kEps;
-          if (t >= t1) return false;
-          q[a] += pos[a] ? 1 : -1;
-          t_next[a] += t_step[a];
-          if ((q[a] >> map_detail::kBlockShift) != (v[a] >> map_detail::kBlockShift)) break;
-        }
-        continue;
-      }
       if (shift == 0 && c && (kOccupiedOnly || c->blocks[bi])) {
         if (f(*c, bi, map_detail::voxelInBlock(v[0], v[1], v[2]), t, std::min(t_exit, t1)))
           return true;
