@@ -193,71 +193,130 @@ struct PixelBounds {
   }
 };
 
-// The camera in float, for viewOctant.
+// The camera in float, for OctantQueue.
 struct OctantProjector {
+  static constexpr float kPx = 1e-3f;  // as viewBox
   float fx, fy, cx, cy, zmin, zmax;
   int width, height;
   float step[3][3];  // step[a]: camera-frame offset of one voxel along world axis a
 };
 
 #ifdef DT_RAYCAST_SSE2
-// viewBox for the small boxes of block octants, in float and four box corners per instruction.
-// The corners are offset from the block's camera-frame corner (from double) by a few voxel steps,
-// so they are off by ~1e-7 m: ~1e-4 px, within the 1e-3 px margin (a pixel it drops is missed
-// by the box), and the z range test keeps 1e-4 m of margin (a box kept in vain changes nothing).
-bool viewOctant(const OctantProjector& P, const float base_C[3], int nx, int ny, int nz,
-                BoxView* out) {
-  // Lanes hold corners (0, 0), (nx, 0), (0, ny), (nx, ny) in world x, y; Q0 at z offset 0, Q1 at
-  // nz.
-  const __m128 mx = _mm_set_ps(1.0f, 0.0f, 1.0f, 0.0f), my = _mm_set_ps(1.0f, 1.0f, 0.0f, 0.0f);
-  const float fnx = static_cast<float>(nx), fny = static_cast<float>(ny),
-              fnz = static_cast<float>(nz);
-  __m128 c0[3], c1[3];
-  for (int k = 0; k < 3; ++k) {
-    c0[k] = _mm_add_ps(_mm_set1_ps(base_C[k]),
-                       _mm_add_ps(_mm_mul_ps(mx, _mm_set1_ps(fnx * P.step[0][k])),
-                                  _mm_mul_ps(my, _mm_set1_ps(fny * P.step[1][k]))));
-    c1[k] = _mm_add_ps(c0[k], _mm_set1_ps(fnz * P.step[2][k]));
+// viewBox for the small boxes of block octants, in float, four boxes at a time (one per lane):
+// boxes are queued and their rectangles found and splatted when four are in. The corners are
+// offset from the block's camera-frame corner (from double) by a few voxel steps, so they are
+// off by ~1e-7 m: ~1e-4 px, within the 1e-3 px margin (a pixel it drops is missed by the box),
+// and the z range test keeps 1e-4 m of margin (a box kept in vain changes nothing).
+struct OctantQueue {
+  int count = 0;
+  alignas(16) float base[3][4];  // camera-frame lower corner, per component
+  alignas(16) float n[3][4];     // extent in voxels along world x, y, z
+  double lo_W[4][3], ext_W[4][3];
+
+  void push(const OctantProjector& P, const float base_C[3], const int n_vox[3], const double lo[3],
+            const double ext[3], PixelBounds* bounds) {
+    for (int k = 0; k < 3; ++k) {
+      base[k][count] = base_C[k];
+      n[k][count] = static_cast<float>(n_vox[k]);
+      lo_W[count][k] = lo[k];
+      ext_W[count][k] = ext[k];
+    }
+    if (++count == 4) flush(P, bounds);
   }
-  const __m128 z_lo4 = _mm_min_ps(c0[2], c1[2]), z_hi4 = _mm_max_ps(c0[2], c1[2]);
-  if (_mm_movemask_ps(_mm_cmpge_ps(z_hi4, _mm_set1_ps(P.zmin - 1e-4f))) == 0 ||
-      _mm_movemask_ps(_mm_cmple_ps(z_lo4, _mm_set1_ps(P.zmax + 1e-4f))) == 0)
-    return false;
-  if (_mm_movemask_ps(_mm_cmple_ps(z_lo4, _mm_set1_ps(1e-6f))) != 0) {
-    out->u0 = 0, out->u1 = P.width - 1, out->v0 = 0, out->v1 = P.height - 1;
-    return true;
+
+  void flush(const OctantProjector& P, PixelBounds* bounds) {
+    if (count == 0) return;
+    for (int j = count; j < 4; ++j)  // idle lanes: copies of the first box, results unused
+      for (int k = 0; k < 3; ++k) base[k][j] = base[k][0], n[k][j] = n[k][0];
+    // Corners (x, y) = (0, 0), (nx, 0), (0, ny), (nx, ny) at z offsets 0 and nz.
+    __m128 corner[8][3];
+    for (int k = 0; k < 3; ++k) {
+      const __m128 b = _mm_load_ps(base[k]);
+      const __m128 ex = _mm_mul_ps(_mm_load_ps(n[0]), _mm_set1_ps(P.step[0][k]));
+      const __m128 ey = _mm_mul_ps(_mm_load_ps(n[1]), _mm_set1_ps(P.step[1][k]));
+      const __m128 ez = _mm_mul_ps(_mm_load_ps(n[2]), _mm_set1_ps(P.step[2][k]));
+      corner[0][k] = b;
+      corner[1][k] = _mm_add_ps(b, ex);
+      corner[2][k] = _mm_add_ps(b, ey);
+      corner[3][k] = _mm_add_ps(b, _mm_add_ps(ex, ey));
+      for (int c = 0; c < 4; ++c) corner[4 + c][k] = _mm_add_ps(corner[c][k], ez);
+    }
+    const __m128 one = _mm_set1_ps(1.0f);
+    __m128 z_lo = corner[0][2], z_hi = z_lo;
+    __m128 iz = _mm_div_ps(one, corner[0][2]);
+    __m128 x_lo = _mm_mul_ps(corner[0][0], iz), x_hi = x_lo;
+    __m128 y_lo = _mm_mul_ps(corner[0][1], iz), y_hi = y_lo;
+    for (int c = 1; c < 8; ++c) {
+      z_lo = _mm_min_ps(z_lo, corner[c][2]), z_hi = _mm_max_ps(z_hi, corner[c][2]);
+      iz = _mm_div_ps(one, corner[c][2]);
+      const __m128 x = _mm_mul_ps(corner[c][0], iz), y = _mm_mul_ps(corner[c][1], iz);
+      x_lo = _mm_min_ps(x_lo, x), x_hi = _mm_max_ps(x_hi, x);
+      y_lo = _mm_min_ps(y_lo, y), y_hi = _mm_max_ps(y_hi, y);
+    }
+    // Out of the depth range; straddling the camera plane (any pixel may see it).
+    const int out_z = _mm_movemask_ps(_mm_or_ps(_mm_cmplt_ps(z_hi, _mm_set1_ps(P.zmin - 1e-4f)),
+                                                _mm_cmpgt_ps(z_lo, _mm_set1_ps(P.zmax + 1e-4f))));
+    const int straddle = _mm_movemask_ps(_mm_cmple_ps(z_lo, _mm_set1_ps(1e-6f)));
+    const float kPx = OctantProjector::kPx;
+    const __m128 u_lo = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(P.fx), x_lo), _mm_set1_ps(P.cx));
+    const __m128 u_hi = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(P.fx), x_hi), _mm_set1_ps(P.cx));
+    const __m128 v_lo = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(P.fy), y_lo), _mm_set1_ps(P.cy));
+    const __m128 v_hi = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(P.fy), y_hi), _mm_set1_ps(P.cy));
+    const __m128 neg_px = _mm_set1_ps(-kPx);
+    const int off_image =
+        _mm_movemask_ps(_mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u_hi, neg_px), _mm_cmplt_ps(v_hi, neg_px)),
+                                  _mm_or_ps(_mm_cmpgt_ps(u_lo, _mm_set1_ps(P.width - 1 + kPx)),
+                                            _mm_cmpgt_ps(v_lo, _mm_set1_ps(P.height - 1 + kPx)))));
+    // max(0, ceil(lo - kPx)) and min(last, floor(hi + kPx)), the clamps taken first (ceil and
+    // floor are monotonic): the values are then non-negative, where floor is truncation.
+    auto ceil0 = [&](__m128 lo) {
+      const __m128 x = _mm_max_ps(_mm_sub_ps(lo, _mm_set1_ps(kPx)), _mm_setzero_ps());
+      const __m128i t = _mm_cvttps_epi32(x);
+      return _mm_sub_epi32(t, _mm_castps_si128(_mm_cmplt_ps(_mm_cvtepi32_ps(t), x)));
+    };
+    auto floorLast = [&](__m128 hi, int last) {
+      return _mm_cvttps_epi32(
+          _mm_min_ps(_mm_max_ps(_mm_add_ps(hi, _mm_set1_ps(kPx)), _mm_setzero_ps()),
+                     _mm_set1_ps(static_cast<float>(last))));
+    };
+    alignas(16) int u0[4], u1[4], v0[4], v1[4];
+    _mm_store_si128(reinterpret_cast<__m128i*>(u0), ceil0(u_lo));
+    _mm_store_si128(reinterpret_cast<__m128i*>(v0), ceil0(v_lo));
+    _mm_store_si128(reinterpret_cast<__m128i*>(u1), floorLast(u_hi, P.width - 1));
+    _mm_store_si128(reinterpret_cast<__m128i*>(v1), floorLast(v_hi, P.height - 1));
+    for (int j = 0; j < count; ++j) {
+      if ((out_z >> j) & 1) continue;
+      BoxView bv;
+      if ((straddle >> j) & 1) {
+        bv.u0 = 0, bv.u1 = P.width - 1, bv.v0 = 0, bv.v1 = P.height - 1;
+      } else {
+        if ((off_image >> j) & 1) continue;
+        bv.u0 = u0[j], bv.u1 = u1[j], bv.v0 = v0[j], bv.v1 = v1[j];
+        if (bv.u0 > bv.u1 || bv.v0 > bv.v1) continue;
+      }
+      const Eigen::Vector3d lo(lo_W[j][0], lo_W[j][1], lo_W[j][2]);
+      const Eigen::Vector3d ext(ext_W[j][0], ext_W[j][1], ext_W[j][2]);
+      bounds->add(bv, lo, lo + ext);
+    }
+    count = 0;
   }
-  const __m128 one = _mm_set1_ps(1.0f);
-  const __m128 iz0 = _mm_div_ps(one, c0[2]), iz1 = _mm_div_ps(one, c1[2]);
-  const __m128 x0 = _mm_mul_ps(c0[0], iz0), x1 = _mm_mul_ps(c1[0], iz1);
-  const __m128 y0 = _mm_mul_ps(c0[1], iz0), y1 = _mm_mul_ps(c1[1], iz1);
-  // Lane-wise extremes, then across lanes (maxima as minima of negatives): x/z, y/z low, high.
-  const __m128 sign = _mm_set1_ps(-0.0f);
-  __m128 a = _mm_min_ps(x0, x1), b = _mm_min_ps(y0, y1);
-  __m128 c = _mm_xor_ps(_mm_max_ps(x0, x1), sign), d = _mm_xor_ps(_mm_max_ps(y0, y1), sign);
-  _MM_TRANSPOSE4_PS(a, b, c, d);
-  float r[4];
-  _mm_storeu_ps(r, _mm_min_ps(_mm_min_ps(a, b), _mm_min_ps(c, d)));
-  const float u_lo = P.fx * r[0] + P.cx, v_lo = P.fy * r[1] + P.cy;
-  const float u_hi = P.fx * -r[2] + P.cx, v_hi = P.fy * -r[3] + P.cy;
-  constexpr float kPx = 1e-3f;
-  if (u_hi < -kPx || v_hi < -kPx || u_lo > P.width - 1 + kPx || v_lo > P.height - 1 + kPx)
-    return false;
-  // Ceil and floor as integers (clamped first, so the conversions stay in range).
-  out->u0 = std::max(0, -map_detail::fastFloor(-(std::max(u_lo, -1.0f) - kPx)));
-  out->u1 = std::min(P.width - 1, map_detail::fastFloor(std::min(u_hi, float(P.width)) + kPx));
-  out->v0 = std::max(0, -map_detail::fastFloor(-(std::max(v_lo, -1.0f) - kPx)));
-  out->v1 = std::min(P.height - 1, map_detail::fastFloor(std::min(v_hi, float(P.height)) + kPx));
-  return out->u0 <= out->u1 && out->v0 <= out->v1;
-}
+};
+#endif
+
+#ifdef DT_RAYCAST_SSE2
+using Boxes = OctantQueue;
+#else
+struct Boxes {};  // the plain build splats each box at once (viewBox)
 #endif
 
 // Splats the occupied voxels of block `bi` of chunk `c` into the bounds, as the tight boxes of its
-// occupied voxels in each of its eight 4x4x4-voxel octants. The block's lower corner: block_lo_W
-// in the world, block_lo_C in the camera frame (for viewOctant).
+// occupied voxels in each of its eight 4x4x4-voxel octants (with SSE2 through `queue`, which the
+// caller flushes at the end). The block's lower corner: block_lo_W in the world, block_lo_C in the
+// camera frame (for the queue).
 void splatBlock([[maybe_unused]] const Projector& P, [[maybe_unused]] const OctantProjector& OP,
-                const Chunk& c, int bi, const Eigen::Vector3d& block_lo_W,
-                [[maybe_unused]] const float block_lo_C[3], double s, PixelBounds* bounds) {
+                [[maybe_unused]] Boxes& queue, const Chunk& c, int bi,
+                const Eigen::Vector3d& block_lo_W, [[maybe_unused]] const float block_lo_C[3],
+                double s, PixelBounds* bounds) {
   const auto& occ = c.occ[bi];  // word z holds bits x | y << 3
   for (int oz = 0; oz < 2; ++oz)
     for (int oy = 0; oy < 2; ++oy)
@@ -281,19 +340,19 @@ void splatBlock([[maybe_unused]] const Projector& P, [[maybe_unused]] const Octa
         const int x_lo = __builtin_ctz(xs), x_hi = 31 - __builtin_clz(xs);
         const int n[3] = {x_hi - x_lo + 1, y_hi - y_lo + 1, z_hi - z_lo + 1};
         const int first[3] = {x_lo, y_lo, z_lo};
-        Eigen::Vector3d lo, ext;
+        double lo[3], ext[3];
         for (int k = 0; k < 3; ++k) lo[k] = block_lo_W[k] + first[k] * s, ext[k] = n[k] * s;
-        BoxView bv;
 #ifdef DT_RAYCAST_SSE2
         float base_C[3];
         for (int k = 0; k < 3; ++k)
           base_C[k] =
               block_lo_C[k] + x_lo * OP.step[0][k] + y_lo * OP.step[1][k] + z_lo * OP.step[2][k];
-        if (!viewOctant(OP, base_C, n[0], n[1], n[2], &bv)) continue;
+        queue.push(OP, base_C, n, lo, ext, bounds);
 #else
-        if (!viewBox(P, lo, ext, &bv)) continue;
+        BoxView bv;
+        const Eigen::Vector3d lo_v(lo[0], lo[1], lo[2]), ext_v(ext[0], ext[1], ext[2]);
+        if (viewBox(P, lo_v, ext_v, &bv)) bounds->add(bv, lo_v, lo_v + ext_v);
 #endif
-        bounds->add(bv, lo, lo + ext);
       }
 }
 
@@ -547,6 +606,7 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // Per chunk: its blocks with an occupied voxel old enough (without a branch per block), those
   // that may be seen (their occupancy lines fetched meanwhile, all at once), then their splats.
   int cand[map_detail::kChunkBlocks], seen[map_detail::kChunkBlocks];
+  Boxes queue;
   float seen_lo_C[map_detail::kChunkBlocks][3];
   for (const auto& ch : m.chunks) {
     if (ch->occupied_blocks == 0) continue;
@@ -579,9 +639,12 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
       const int bi = seen[k];
       const Eigen::Vector3d lo =
           chunk_lo + Eigen::Vector3d(bi & 7, (bi >> 3) & 7, bi >> 6) * block_m;
-      splatBlock(P, OP, *ch, bi, lo, seen_lo_C[k], m.s, &bounds);
+      splatBlock(P, OP, queue, *ch, bi, lo, seen_lo_C[k], m.s, &bounds);
     }
   }
+#ifdef DT_RAYCAST_SSE2
+  queue.flush(OP, &bounds);
+#endif
 
   const Eigen::Matrix3d R = T_W_C.linear();
   const Eigen::Vector3d O = T_W_C.translation() * m.inv_s;
