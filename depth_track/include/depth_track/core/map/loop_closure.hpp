@@ -31,7 +31,7 @@ struct LoopClosureConfig {
   /// scaled by 1/2 about pixel centres), with the current frame averaged over 2x2 pixels and
   /// both reduced with cells of pca.cell_size / 2 px, so a cell covers the same view (4x fewer
   /// rays; corrections agree with full resolution, see test_loop_closure). The default: a
-  /// 320x240 cast takes ~14 ms against ~40 ms at 640x480, and the tracker runs in
+  /// 320x240 cast takes ~12 ms against ~38 ms at 640x480, and the tracker runs in
   /// test_loop_closure end with the same or lower errors than at full resolution.
   int raycast_downsample = 2;
   RegistrationConfig registration;  ///< method and pair gates of the correcting registration
