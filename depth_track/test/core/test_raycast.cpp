@@ -1,13 +1,17 @@
 // Depth from the voxel map: the ray cast of a map built from one frame reproduces that frame
-// within one voxel; the skipping ray cast equals the reference march; range and bad input.
+// within one voxel; the skipping ray cast equals the reference march; min_age_frames leaves out
+// recently born blocks; range and bad input.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
+#include <set>
+#include <tuple>
 #include <vector>
 
 #include "depth_track/core/map/loop_closure.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
 using namespace depth_track;
@@ -151,4 +155,47 @@ TEST(Raycast, RangeEmptyMapAndBadInput) {
   EXPECT_THROW(map.raycast(k, bad, DepthRange{}), std::invalid_argument);
   EXPECT_THROW(map.raycast(k, Eigen::Isometry3d::Identity(), DepthRange{2.0, 1.0}),
                std::invalid_argument);
+}
+
+TEST(Raycast, MinAgeFramesLeavesOutRecentlyBornBlocks) {
+  // Two views of the chair room, the second turned 35 deg to the side: its returns reach blocks
+  // the first did not. With min_age_frames = 1 only blocks born in the first
+  // frame form the model, so every virtual return must lie in a block the first frame's map
+  // alone has, and returns in the second frame's new blocks drop out.
+  const sim::RenderedRun run = sim::makeRun("xtest1_05_chair");
+  const auto clean = sim::NoiseConfig::forModel(sim::NoiseModel::kNone);
+  Eigen::Isometry3d T = run.T_W_C[0];
+  T.linear() =
+      T.linear() * Eigen::AngleAxisd(35.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).matrix();
+  MapConfig cfg;
+  cfg.model = UpdateModel::kHitOnly;
+  cfg.bounded = false;
+  VoxelMap first_only(cfg), both(cfg);
+  const DepthImage d0 = run.renderFrame(0, clean, 1, 2);
+  const DepthImage d1 = sim::renderDepth(run.scene, run.intrinsics, T, run.range);
+  first_only.fuse(d0, run.intrinsics, run.T_W_C[0]);
+  both.fuse(d0, run.intrinsics, run.T_W_C[0]);
+  both.fuse(d1, run.intrinsics, T);
+  // Blocks (8^3 voxels) holding a voxel of the first frame.
+  std::set<std::tuple<int, int, int>> first_blocks;
+  for (const VoxelKey& k : first_only.occupiedKeys())
+    first_blocks.emplace(k.x() >> 3, k.y() >> 3, k.z() >> 3);
+  const DepthImage all = both.raycast(run.intrinsics, T, run.range);
+  const DepthImage aged = both.raycast(run.intrinsics, T, run.range, 1, 1);
+  std::size_t n_all = 0, n_aged = 0, aged_in_first = 0;
+  for (int v = 0; v < all.height; ++v)
+    for (int u = 0; u < all.width; ++u) {
+      n_all += all.at(u, v) > 0.0f;
+      if (!(aged.at(u, v) > 0.0f)) continue;
+      ++n_aged;
+      const VoxelKey k =
+          both.keyOf(T * run.intrinsics.backProject(u, v, aged.at(u, v)).cast<double>());
+      aged_in_first += first_blocks.count({k.x() >> 3, k.y() >> 3, k.z() >> 3});
+    }
+  EXPECT_GT(n_aged, 10000u);
+  EXPECT_LT(n_aged, n_all - 10000u) << "the second frame's new blocks should drop out";
+  EXPECT_GT(static_cast<double>(aged_in_first), 0.999 * static_cast<double>(n_aged));
+  // Asking for more age than the map has gives an empty image; a negative age is an error.
+  EXPECT_EQ(both.raycast(run.intrinsics, T, run.range, 1, 2).countValid(), 0u);
+  EXPECT_THROW(both.raycast(run.intrinsics, T, run.range, 1, -1), std::invalid_argument);
 }
