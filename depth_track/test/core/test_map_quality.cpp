@@ -47,6 +47,8 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   const auto clean = sim::NoiseConfig::forModel(sim::NoiseModel::kNone);
   MapperConfig mc;
   mc.range = run.range;
+  // The map as configured by default (one hit makes a voxel occupied), for comparison.
+  Mapper one_hit(run.intrinsics, mc, run.T_W_C.front());
   // A voxel counts as occupied after two hits (logit(0.8) = 1.39 > 0.85 per hit): sensor
   // outliers that hit a voxel once do not make a surface.
   mc.map.occupancy_threshold = 0.8;
@@ -59,6 +61,7 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
     const DepthImage d = run.renderFrame(i, noise, 11, 2);
     const FrameStatus st = tracker.track(d, run.stamps_s[i]);
     tracked.process(d, st.T_W_C);
+    one_hit.process(d, st.T_W_C);
     truth.fuse(d, run.T_W_C[i]);
     if (i % 20 == 0) {  // visible true surface: noise-free render, every 4th pixel
       const DepthImage c = run.renderFrame(i, clean, 11, 2);
@@ -79,6 +82,9 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   const SurfaceQuality q = surfaceQuality(tracked.map(), dist, surface, tol);
   const SurfaceQuality q_gt = surfaceQuality(truth.map(), dist, surface, tol);
   const SurfaceQuality q_strict = surfaceQuality(tracked.map(), dist, surface, s);
+  const SurfaceQuality q_one_hit = surfaceQuality(one_hit.map(), dist, surface, tol);
+  std::printf("default one-hit threshold: precision %.2f %% completeness %.2f %%\n",
+              100 * q_one_hit.precision, 100 * q_one_hit.completeness);
   std::printf("precision with the centre within one edge (5 mm): %.2f %%\n",
               100 * q_strict.precision);
   const VoxelSetDifference diff =
@@ -93,4 +99,8 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   EXPECT_GE(q.precision, 0.95);
   EXPECT_GE(q.completeness, 0.9);
   EXPECT_LT(diff.a_far_fraction, 0.05);
+  // With the default threshold a voxel hit once by a stray return counts: measured 93.8 %. The
+  // default stays one hit because loop closure on Room3 does better with it (see README).
+  EXPECT_GE(q_one_hit.precision, 0.92);
+  EXPECT_LT(q_one_hit.precision, q.precision);
 }
