@@ -47,53 +47,50 @@ void walkCarve(const VoxelMap::Impl& m, const Eigen::Vector3d& o, const Eigen::V
   const int ahead[3] = {pos[0] ? 1 : 0, pos[1] ? 1 : 0, pos[2] ? 1 : 0};
   constexpr double kEps = 1e-9;  // as walk<false>
   double t = 0.0;
+  // Steps the ray cell to cell over the grid of (1 << shift)-voxel cells, from the cell holding
+  // voxel q, until found(k, before) accepts the cell k just entered (before: the left cell's
+  // index along the axis crossed). False when the ray runs out first.
+  auto skip = [&](int shift, const int q[3], auto&& found) {
+    const int size = 1 << shift;
+    int k[3] = {q[0] >> shift, q[1] >> shift, q[2] >> shift};
+    auto bound = [&](int a, int k_a) { return ((k_a + ahead[a]) * size - O[a]) * invD[a]; };
+    double t_next[3], t_after[3];
+    for (int a = 0; a < 3; ++a) {
+      t_next[a] = bound(a, k[a]);
+      t_after[a] = bound(a, k[a] + step[a]);
+    }
+    while (true) {
+      const int a = argmin3(t_next);
+      t = std::max(t_next[a], t) + kEps;
+      if (t >= t1) return false;
+      const int before = k[a];
+      k[a] += step[a];
+      t_next[a] = t_after[a];
+      t_after[a] = bound(a, k[a] + step[a]);
+      if (found(k, a, before)) return true;
+    }
+  };
   while (t < t1) {
     int q[3] = {fastFloor(O.x() + t * D.x()), fastFloor(O.y() + t * D.y()),
                 fastFloor(O.z() + t * D.z())};
     Chunk* c = m.chunkAt(q[0] >> kChunkShift, q[1] >> kChunkShift, q[2] >> kChunkShift);
     if (!c) {
-      // Missing chunk: step chunk to chunk until one exists, then re-derive the voxel there.
-      int k[3] = {q[0] >> kChunkShift, q[1] >> kChunkShift, q[2] >> kChunkShift};
-      auto bound = [&](int a, int k_a) { return ((k_a + ahead[a]) * 64 - O[a]) * invD[a]; };
-      double t_next[3], t_after[3];
-      for (int a = 0; a < 3; ++a) {
-        t_next[a] = bound(a, k[a]);
-        t_after[a] = bound(a, k[a] + step[a]);
-      }
-      while (true) {
-        const int a = argmin3(t_next);
-        t = std::max(t_next[a], t) + kEps;
-        if (t >= t1) return;
-        k[a] += step[a];
-        t_next[a] = t_after[a];
-        t_after[a] = bound(a, k[a] + step[a]);
-        if (m.chunkAt(k[0], k[1], k[2])) break;
-      }
+      // Missing chunk: chunk to chunk until one exists, then re-derive the voxel there.
+      if (!skip(kChunkShift, q,
+                [&](const int* k, int, int) { return m.chunkAt(k[0], k[1], k[2]) != nullptr; }))
+        return;
       continue;
     }
     int bi = blockInChunk(q[0], q[1], q[2]);
     Block* b = c->blocks[bi].get();
     if (!b) {
-      // Missing block: step block to block inside the chunk until one exists or the ray leaves
-      // the chunk, then re-derive the voxel there.
-      int k[3] = {q[0] >> kBlockShift, q[1] >> kBlockShift, q[2] >> kBlockShift};
-      auto bound = [&](int a, int k_a) { return ((k_a + ahead[a]) * 8 - O[a]) * invD[a]; };
-      double t_next[3], t_after[3];
-      for (int a = 0; a < 3; ++a) {
-        t_next[a] = bound(a, k[a]);
-        t_after[a] = bound(a, k[a] + step[a]);
-      }
-      while (true) {
-        const int a = argmin3(t_next);
-        t = std::max(t_next[a], t) + kEps;
-        if (t >= t1) return;
-        const int before = k[a];
-        k[a] += step[a];
-        t_next[a] = t_after[a];
-        t_after[a] = bound(a, k[a] + step[a]);
-        if ((k[a] >> 3) != (before >> 3)) break;
-        if (c->blocks[(k[0] & 7) | ((k[1] & 7) << 3) | ((k[2] & 7) << 6)]) break;
-      }
+      // Missing block: block to block inside the chunk until one exists or the ray leaves the
+      // chunk, then re-derive the voxel there.
+      if (!skip(kBlockShift, q, [&](const int* k, int a, int before) {
+            return (k[a] >> 3) != (before >> 3) ||
+                   c->blocks[(k[0] & 7) | ((k[1] & 7) << 3) | ((k[2] & 7) << 6)];
+          }))
+        return;
       continue;
     }
     // Allocated block: integer stepping through it and through allocated neighbours.
