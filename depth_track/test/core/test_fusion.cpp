@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <set>
 #include <tuple>
@@ -299,6 +300,16 @@ TEST(Fusion, BadInputIsNamedAndLeavesTheMapUntouched) {
   expectMessage([&] { map.fuse(DepthImage(640, 480, 0.0f), kK, I); }, "no valid return");
   expectMessage([&] { map.fuse(DepthImage(320, 240, 1.0f), kK, I); }, "320x240");
   EXPECT_THROW(map.fuse(DepthImage(640, 480, 0.0f), kK, I), DepthInputError);
+  // Non-finite pixels are no return, in the hit pass and in carving (a ray to +inf must not be
+  // walked): a frame of them and one real pixel fuses that pixel only.
+  DepthImage odd(640, 480, std::numeric_limits<float>::infinity());
+  for (int u = 0; u < 640; u += 2) odd.at(u, 7) = std::nanf("");
+  odd.at(320, 240) = 2.0025f;
+  VoxelMap odd_map(unboundedConfig(0.005, UpdateModel::kProbabilistic));
+  const FuseStats st_odd = odd_map.fuse(odd, kK, I);
+  EXPECT_EQ(odd_map.occupiedCount(), 1u);
+  EXPECT_EQ(st_odd.valid_pixels, 1);
+  EXPECT_LE(st_odd.carve_rays, 1);  // the one pixel, when it falls on this frame's carve lattice
 
   const std::string good = ::testing::TempDir() + "dt_fusion_map.bt";
   map.save(good);

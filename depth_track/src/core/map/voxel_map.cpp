@@ -325,7 +325,8 @@ __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
     for (int u = ou; u < w; u += stride) {
       const double z = row[u];
-      if (!(z > 0.0)) continue;
+      // As in the hit pass, only a finite positive depth is a return (a ray to +inf never ends).
+      if (!(z > 0.0) || !(z < std::numeric_limits<double>::infinity())) continue;
       // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
       const Eigen::Vector3d d = R * Eigen::Vector3d(fr.xu[u], fr.yv[v], 1.0);
       const double t_end = z - margin_m / d.norm();  // margin metres along the ray
