@@ -110,25 +110,31 @@ inline bool fromFrame(const protocol::Frame& f, const ros::Time& stamp, const st
   return detail::decodeTo<protocol::TruckRcPayload>(f, stamp, frame_id, out);
 }
 
+namespace detail {
+/// Link timing stamped `stamp` with every clock and the round trip unmeasured (-1).
+inline rig_msgs::LinkTiming unmeasuredLinkTiming(const ros::Time& stamp) {
+  rig_msgs::LinkTiming t;
+  t.header.stamp = stamp;
+  t.time1_s = t.time2_s = t.time3_s = t.time4_s = t.time5_s = t.time6_s = t.round_trip_s = -1.0;
+  return t;
+}
+}  // namespace detail
+
 /// Link timing of one track state: Time1 = TrackDRV clock, Time2 = host clock (s); the clocks
 /// not measured on this path and the round trip are -1.
 inline rig_msgs::LinkTiming trackLinkTiming(const rig_msgs::TrackState& s, double host_time_s) {
-  rig_msgs::LinkTiming t;
-  t.header.stamp = s.header.stamp;
+  rig_msgs::LinkTiming t = detail::unmeasuredLinkTiming(s.header.stamp);
   t.time1_s = s.board_time_s;
   t.time2_s = host_time_s;
-  t.time3_s = t.time4_s = t.time5_s = t.time6_s = t.round_trip_s = -1.0;
   return t;
 }
 
 /// The carriage path's clocks (thesis 4.2.2.1): Time3 = CarDRV's board clock, Time5 = CarHost's
 /// clock; the track path's clocks come from trackLinkTiming.
 inline rig_msgs::LinkTiming carLinkTiming(const rig_msgs::CarriageSensors& s, double host_time_s) {
-  rig_msgs::LinkTiming t;
-  t.header.stamp = s.header.stamp;
+  rig_msgs::LinkTiming t = detail::unmeasuredLinkTiming(s.header.stamp);
   t.time3_s = s.board_time_s;
   t.time5_s = host_time_s;
-  t.time1_s = t.time2_s = t.time4_s = t.time6_s = t.round_trip_s = -1.0;
   return t;
 }
 
