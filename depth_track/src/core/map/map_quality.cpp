@@ -17,12 +17,20 @@ struct KeyHash {
 };
 using KeySet = std::unordered_set<VoxelKey, KeyHash>;
 
-bool anyWithin(const KeySet& set, const VoxelKey& k, int r) {
+// True when a key of `set` within r voxels of k (per axis) passes accept(key).
+template <class Accept>
+bool anyWithin(const KeySet& set, const VoxelKey& k, int r, Accept&& accept) {
   for (int dz = -r; dz <= r; ++dz)
     for (int dy = -r; dy <= r; ++dy)
-      for (int dx = -r; dx <= r; ++dx)
-        if (set.count(k + VoxelKey(dx, dy, dz))) return true;
+      for (int dx = -r; dx <= r; ++dx) {
+        const VoxelKey n = k + VoxelKey(dx, dy, dz);
+        if (set.count(n) && accept(n)) return true;
+      }
   return false;
+}
+
+bool anyWithin(const KeySet& set, const VoxelKey& k, int r) {
+  return anyWithin(set, k, r, [](const VoxelKey&) { return true; });
 }
 
 }  // namespace
@@ -44,15 +52,9 @@ SurfaceQuality surfaceQuality(
   const int r = static_cast<int>(std::ceil(tolerance_m / s));
   for (const auto& p : surface_W) {
     ++q.surface_samples;
-    const VoxelKey k0 = map.keyOf(p);
-    bool hit = false;
-    for (int dz = -r; dz <= r && !hit; ++dz)
-      for (int dy = -r; dy <= r && !hit; ++dy)
-        for (int dx = -r; dx <= r && !hit; ++dx) {
-          const VoxelKey k = k0 + VoxelKey(dx, dy, dz);
-          hit = occupied.count(k) && (map.centerOf(k) - p).norm() <= tolerance_m;
-        }
-    q.covered += hit;
+    q.covered += anyWithin(occupied, map.keyOf(p), r, [&](const VoxelKey& k) {
+      return (map.centerOf(k) - p).norm() <= tolerance_m;
+    });
   }
   q.completeness = q.surface_samples ? static_cast<double>(q.covered) / q.surface_samples : 0.0;
   return q;
