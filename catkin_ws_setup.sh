@@ -38,6 +38,10 @@ PACKAGES=(
   libgeometry-msgs-dev libnav-msgs-dev libvisualization-msgs-dev libimage-transport-dev
   libpcl-conversions-dev libpcl-ros-dev librosbag-dev librostest-dev python3-rostest
   python3-rosbag python3-roslaunch python3-rosunit rosbash rviz
+  # Python side of the graph's messages, so rostopic / rosmsg / rosservice can decode them
+  python3-rostopic python3-rosnode python3-rosservice python3-rosmsg python3-genpy
+  python3-std-msgs python3-std-srvs python3-sensor-msgs python3-geometry-msgs python3-nav-msgs
+  python3-tf2-msgs python3-visualization-msgs python3-rosgraph-msgs python3-diagnostic-msgs
   # core libraries
   libeigen3-dev libtbb-dev liboctomap-dev octomap-tools libpng-dev libnanoflann-dev
   libcli11-dev libyaml-cpp-dev
