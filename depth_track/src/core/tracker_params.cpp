@@ -10,59 +10,13 @@ namespace depth_track {
 
 namespace {
 
-double toDouble(const std::string& name, const std::string& v) {
-  std::size_t used = 0;
-  double d;
-  try {
-    d = std::stod(v, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != v.size() || !std::isfinite(d))
-    throw std::invalid_argument("parameter " + name + ": '" + v + "' is not a finite number");
-  return d;
-}
-
-int toInt(const std::string& name, const std::string& v) {
-  const double d = toDouble(name, v);
-  if (d != std::floor(d) || std::abs(d) > 1e9)
-    throw std::invalid_argument("parameter " + name + ": '" + v + "' is not an integer");
-  return static_cast<int>(d);
-}
-
-bool toBool(const std::string& name, const std::string& v) {
-  if (v == "true" || v == "on" || v == "1" || v == "yes") return true;
-  if (v == "false" || v == "off" || v == "0" || v == "no") return false;
-  throw std::invalid_argument("parameter " + name + ": '" + v + "' is not on/off (true/false)");
-}
-
-std::string fmt(double d) {
-  std::ostringstream s;
-  s << d;
-  return s.str();
-}
+using param_text::toBool;
+using param_text::toDouble;
+using param_text::toInt;
 
 template <typename Member>
 ParamSpec num(const char* name, const char* unit, const char* help, Member member) {
-  return {name, unit, help,
-          [member](const TrackerConfig& c) {
-            const auto value = member(const_cast<TrackerConfig&>(c));
-            if constexpr (std::is_same_v<std::decay_t<decltype(value)>, bool>) {
-              return std::string(value ? "true" : "false");
-            } else {
-              return fmt(value);
-            }
-          },
-          [member, name](TrackerConfig& c, const std::string& v) {
-            using T = std::remove_reference_t<decltype(member(c))>;
-            if constexpr (std::is_same_v<T, int>) {
-              member(c) = toInt(name, v);
-            } else if constexpr (std::is_same_v<T, bool>) {
-              member(c) = toBool(name, v);
-            } else {
-              member(c) = toDouble(name, v);
-            }
-          }};
+  return numParam<TrackerConfig>(name, unit, help, member);
 }
 
 std::vector<ParamSpec> makeParams() {
@@ -181,18 +135,7 @@ const std::vector<ParamSpec>& trackerParams() {
 }
 
 void setTrackerParam(TrackerConfig& config, const std::string& name, const std::string& value) {
-  for (const ParamSpec& p : trackerParams())
-    if (p.name == name) {
-      try {
-        p.set(config, value);
-      } catch (const std::invalid_argument& e) {
-        const std::string what = e.what();
-        if (what.rfind("parameter ", 0) == 0) throw;
-        throw std::invalid_argument("parameter " + name + ": " + what);
-      }
-      return;
-    }
-  throw std::invalid_argument("unknown tracker parameter '" + name + "'");
+  setParam(trackerParams(), config, name, value, "tracker");
 }
 
 void loadTrackerParamsYaml(const std::string& path, TrackerConfig& config) {

@@ -2,21 +2,15 @@
 /// The tracker's parameters as one table: name, unit, meaning, and typed get/set on a
 /// TrackerConfig. Every front end reads it — the offline tools' command-line options, YAML
 /// config files and (in the ROS adapter) private parameters — so a parameter is declared once.
-#include <functional>
 #include <string>
 #include <vector>
 
+#include "depth_track/core/param_table.hpp"
 #include "depth_track/core/tracker.hpp"
 
 namespace depth_track {
 
-struct ParamSpec {
-  std::string name;  ///< snake_case key ("dist_min"); command-line option "--dist-min"
-  std::string unit;  ///< "m", "deg", "px", "" for dimensionless / choices
-  std::string help;  ///< one line of meaning
-  std::function<std::string(const TrackerConfig&)> get;         ///< value as text
-  std::function<void(TrackerConfig&, const std::string&)> set;  ///< throws std::invalid_argument
-};
+using ParamSpec = BasicParamSpec<TrackerConfig>;
 
 /// All tracker parameters (prefilter, PCA, matching, registration, tracker). Thread-safe.
 const std::vector<ParamSpec>& trackerParams();

@@ -1,0 +1,285 @@
+#include "depth_track/ros/params.hpp"
+
+#include <XmlRpcValue.h>
+#include <ros/param.h>
+
+#include <cstdio>
+#include <set>
+#include <sstream>
+
+#include "depth_track/core/camera.hpp"
+
+namespace depth_track {
+namespace rosparams {
+
+namespace {
+
+NodeParamSpec num(const char* node, const char* name, const char* unit, const char* help,
+                  double def, double lo, double hi, char type = 'd') {
+  NodeParamSpec p;
+  p.node = node, p.name = name, p.type = type, p.unit = unit, p.help = help;
+  p.default_text = param_text::format(def);
+  p.min = lo, p.max = hi;
+  return p;
+}
+NodeParamSpec integer(const char* node, const char* name, const char* unit, const char* help,
+                      int def, int lo, int hi) {
+  return num(node, name, unit, help, def, lo, hi, 'i');
+}
+NodeParamSpec flag(const char* node, const char* name, const char* help, bool def) {
+  NodeParamSpec p;
+  p.node = node, p.name = name, p.type = 'b', p.help = help;
+  p.default_text = def ? "true" : "false";
+  return p;
+}
+NodeParamSpec text(const char* node, const char* name, const char* help, const char* def,
+                   std::vector<std::string> choices = {}) {
+  NodeParamSpec p;
+  p.node = node, p.name = name, p.type = 's', p.help = help;
+  p.default_text = def;
+  p.choices = std::move(choices);
+  return p;
+}
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+std::vector<NodeParamSpec> makeParams() {
+  std::vector<NodeParamSpec> p;
+  const char* mode_help =
+      "replay: every frame in order, deterministic; live: the freshest frame, skips counted";
+  // ---- ingest ----
+  p.push_back(text("ingest", "mode", mode_help, "live", {"live", "replay"}));
+  p.push_back(num("ingest", "depth_scale", "m",
+                  "metres per 16UC1 unit: 0.001 RealSense D4xx / ROS drivers, 0.00025 L515 raw, "
+                  "0.0002 TUM",
+                  0.001, 1e-7, 1.0));
+  p.push_back(
+      num("ingest", "d_min", "m", "nearer depths are no return", DepthRange{}.min_m, 0.0, 100.0));
+  p.push_back(
+      num("ingest", "d_max", "m", "farther depths are no return", DepthRange{}.max_m, 0.01, 100.0));
+  p.push_back(num("ingest", "false_colour_band", "m",
+                  "depth per colour band of the false-colour image (thesis: 50 mm)", 0.05, 1e-3,
+                  10.0));
+  p.push_back(num("ingest", "input_timeout", "s",
+                  "warn (naming the topics) when no frame came for this long", 5.0, 0.1, 3600.0));
+  p.push_back(integer("ingest", "threads", "", "workers of the prefilter", 1, 1, 64));
+  p.push_back(integer("ingest", "replay_queue", "frames",
+                      "replay: frames held while the graph is behind (then the oldest is dropped "
+                      "with an error)",
+                      2000, 1, 100000));
+  // ---- pca_reduce ----
+  p.push_back(text("pca_reduce", "mode", mode_help, "live", {"live", "replay"}));
+  p.push_back(integer("pca_reduce", "threads", "", "workers of the PCA reduction", 1, 1, 64));
+  // ---- registration ----
+  p.push_back(text("registration", "mode", mode_help, "live", {"live", "replay"}));
+  p.push_back(text("registration", "odom_frame", "frame of the odometry (REP 105)", "odom"));
+  p.push_back(text("registration", "base_frame", "the robot's body frame (REP 105)", "base_link"));
+  p.push_back(text("registration", "map_frame", "frame of the loop-closure corrections", "map"));
+  p.push_back(text("registration", "guess_frame",
+                   "fixed frame of a motion prior from tf (wheel odometry, the rig's sensors): "
+                   "the motion of base_frame in it between two frames; empty = constant velocity",
+                   ""));
+  p.push_back(num("registration", "guess_timeout", "s", "wait this long for the prior's tf", 0.05,
+                  0.0, 10.0));
+  p.push_back(num("registration", "static_tf_timeout", "s",
+                  "warn about a missing base_frame -> camera transform every this long", 2.0, 0.1,
+                  3600.0));
+  p.push_back(flag("registration", "publish_tf", "publish tf odom_frame -> base_frame", true));
+  p.push_back(integer("registration", "path_length", "poses",
+                      "poses kept in the published path (oldest dropped)", 2000, 1, 1000000));
+  p.push_back(num("registration", "lost_position_var", "m^2",
+                  "position variance published while LOST (inflated)", 1.0, 0.0, kInf));
+  p.push_back(num("registration", "lost_rotation_var", "rad^2",
+                  "rotation variance published while LOST (inflated)", 0.1, 0.0, kInf));
+  p.push_back(flag("registration", "relocalise",
+                   "while LOST, register against the map's ray cast at the held pose "
+                   "(needs the fusion nodelet in the same manager)",
+                   true));
+  p.push_back(integer("registration", "relocalise_every", "frames",
+                      "attempt a relocalisation every n-th lost frame", 3, 1, 1000));
+  p.push_back(text("registration", "trajectory_path",
+                   "default file of save_trajectory (TUM format; map poses beside it as "
+                   "<name>_map.txt)",
+                   "/tmp/depth_track_trajectory.txt"));
+  // ---- fusion ----
+  p.push_back(text("fusion", "mode", mode_help, "live", {"live", "replay"}));
+  p.push_back(text("fusion", "map_frame", "frame of the map", "map"));
+  p.push_back(text("fusion", "odom_frame", "frame of the odometry", "odom"));
+  p.push_back(num("fusion", "publish_period", "s",
+                  "minimum time between map publications (voxels, markers)", 1.0, 0.0, 3600.0));
+  p.push_back(integer("fusion", "sync_queue", "frames",
+                      "depth frames kept while their pose is awaited", 90, 1, 10000));
+  p.push_back(text("fusion", "map_path", "default file of save_map (OctoMap .bt)",
+                   "/tmp/depth_track_map.bt"));
+  // ---- loop_closure ----
+  p.push_back(text("loop_closure", "mode", mode_help, "live", {"live", "replay"}));
+  p.push_back(text("loop_closure", "map_frame", "frame of the map", "map"));
+  p.push_back(text("loop_closure", "odom_frame", "frame of the odometry", "odom"));
+  p.push_back(num("loop_closure", "tf_rate", "Hz", "rate of map_frame -> odom_frame on tf", 20.0,
+                  0.1, 1000.0));
+  p.push_back(integer("loop_closure", "sync_queue", "frames",
+                      "depth frames kept while their pose is awaited", 90, 1, 10000));
+  p.push_back(num("loop_closure", "wait_timeout", "s",
+                  "replay: wait this long for the map to catch up before an attempt", 10.0, 0.0,
+                  3600.0));
+  return p;
+}
+
+}  // namespace
+
+const std::vector<NodeParamSpec>& nodeParams() {
+  static const std::vector<NodeParamSpec> params = makeParams();
+  return params;
+}
+
+std::vector<std::string> nodeNames() {
+  std::vector<std::string> names;
+  for (const auto& p : nodeParams())
+    if (names.empty() || names.back() != p.node) names.push_back(p.node);
+  return names;
+}
+
+bool readText(const ros::NodeHandle& nh, const std::string& key, std::string* text) {
+  XmlRpc::XmlRpcValue v;
+  if (!nh.getParam(key, v)) return false;
+  switch (v.getType()) {
+    case XmlRpc::XmlRpcValue::TypeInt:
+      *text = std::to_string(static_cast<int>(v));
+      return true;
+    case XmlRpc::XmlRpcValue::TypeDouble: {
+      char buf[64];
+      std::snprintf(buf, sizeof(buf), "%.17g", static_cast<double>(v));
+      *text = buf;
+      return true;
+    }
+    case XmlRpc::XmlRpcValue::TypeBoolean:
+      *text = static_cast<bool>(v) ? "true" : "false";
+      return true;
+    case XmlRpc::XmlRpcValue::TypeString:
+      *text = static_cast<std::string>(v);
+      return true;
+    default:
+      *text = "<not a single value>";
+      return true;
+  }
+}
+
+std::vector<std::string> keysUnder(const ros::NodeHandle& nh) {
+  std::vector<std::string> all, out;
+  if (!ros::param::getParamNames(all)) return out;
+  std::string ns = nh.getNamespace();
+  if (ns.empty() || ns.back() != '/') ns += '/';
+  std::set<std::string> seen;
+  for (const auto& name : all) {
+    if (name.rfind(ns, 0) != 0) continue;
+    const std::string rest = name.substr(ns.size());
+    const std::string key = rest.substr(0, rest.find('/'));
+    if (!key.empty() && seen.insert(key).second) out.push_back(key);
+  }
+  return out;
+}
+
+ParamReader::ParamReader(const ros::NodeHandle& private_nh, std::string node)
+    : nh_(private_nh), node_(std::move(node)) {
+  for (const auto& key : keysUnder(nh_)) {
+    bool known = false;
+    for (const auto& p : nodeParams()) known = known || (p.node == node_ && p.name == key);
+    // Sub-namespaces (e.g. a nodelet's bond or a per-stage table) are not the node's own keys.
+    std::string probe;
+    XmlRpc::XmlRpcValue v;
+    const bool is_struct = nh_.getParam(key, v) && v.getType() == XmlRpc::XmlRpcValue::TypeStruct;
+    if (!known && !is_struct) problems_.push_back(nh_.resolveName(key) + ": unknown parameter");
+  }
+}
+
+const NodeParamSpec& ParamReader::spec(const std::string& name, char type) const {
+  for (const auto& p : nodeParams())
+    if (p.node == node_ && p.name == name) {
+      if (p.type != type)
+        throw std::logic_error("parameter " + name + " of " + node_ + " read as the wrong type");
+      return p;
+    }
+  throw std::logic_error("parameter " + name + " is not in nodeParams() for " + node_);
+}
+
+std::string ParamReader::raw(const std::string& name, char type) {
+  const NodeParamSpec& p = spec(name, type);
+  std::string t;
+  if (!readText(nh_, name, &t)) t = p.default_text;
+  return t;
+}
+
+double ParamReader::getDouble(const std::string& name) {
+  const NodeParamSpec& p = spec(name, 'd');
+  const std::string t = raw(name, 'd');
+  try {
+    const double v = param_text::toDouble(name, t);
+    if (v < p.min || v > p.max) {
+      problems_.push_back(nh_.resolveName(name) + " = " + t + ": must lie in [" +
+                          param_text::format(p.min) + ", " + param_text::format(p.max) + "]" +
+                          (p.unit.empty() ? "" : " " + p.unit));
+      return param_text::toDouble(name, p.default_text);
+    }
+    return v;
+  } catch (const std::invalid_argument& e) {
+    problems_.push_back(nh_.resolveName(name) + " = '" + t + "': " + e.what());
+    return param_text::toDouble(name, p.default_text);
+  }
+}
+
+int ParamReader::getInt(const std::string& name) {
+  const NodeParamSpec& p = spec(name, 'i');
+  const std::string t = raw(name, 'i');
+  try {
+    const int v = param_text::toInt(name, t);
+    if (v < p.min || v > p.max) {
+      problems_.push_back(nh_.resolveName(name) + " = " + t + ": must lie in [" +
+                          param_text::format(p.min) + ", " + param_text::format(p.max) + "]" +
+                          (p.unit.empty() ? "" : " " + p.unit));
+      return param_text::toInt(name, p.default_text);
+    }
+    return v;
+  } catch (const std::invalid_argument& e) {
+    problems_.push_back(nh_.resolveName(name) + " = '" + t + "': " + e.what());
+    return param_text::toInt(name, p.default_text);
+  }
+}
+
+bool ParamReader::getBool(const std::string& name) {
+  const NodeParamSpec& p = spec(name, 'b');
+  const std::string t = raw(name, 'b');
+  try {
+    return param_text::toBool(name, t);
+  } catch (const std::invalid_argument& e) {
+    problems_.push_back(nh_.resolveName(name) + " = '" + t + "': " + e.what());
+    return param_text::toBool(name, p.default_text);
+  }
+}
+
+std::string ParamReader::getString(const std::string& name) {
+  const NodeParamSpec& p = spec(name, 's');
+  const std::string t = raw(name, 's');
+  if (!p.choices.empty()) {
+    bool ok = false;
+    std::string all;
+    for (const auto& c : p.choices) {
+      ok = ok || c == t;
+      all += (all.empty() ? "" : " | ") + c;
+    }
+    if (!ok) {
+      problems_.push_back(nh_.resolveName(name) + " = '" + t + "': must be " + all);
+      return p.default_text;
+    }
+  }
+  return t;
+}
+
+void ParamReader::finish() const {
+  if (problems_.empty()) return;
+  std::string msg = node_ + ": invalid parameters (documented in config/tracking.yaml): ";
+  for (std::size_t i = 0; i < problems_.size(); ++i) msg += (i ? "; " : "") + problems_[i];
+  throw ParamError(msg);
+}
+
+}  // namespace rosparams
+}  // namespace depth_track
