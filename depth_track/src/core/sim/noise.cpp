@@ -10,6 +10,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "depth_track/core/yaml_section.hpp"
+
 namespace depth_track {
 namespace sim {
 
@@ -312,6 +314,8 @@ std::vector<std::string> NoiseConfig::validate() const {
   prob(grazing_dropout_prob, "grazing_dropout_prob");
   if (!(std::isfinite(depth_scale_bias) && std::abs(depth_scale_bias) <= 0.2))
     p.push_back("depth_scale_bias must be within +-0.2");
+  if (!(std::isfinite(depth_offset_m) && std::abs(depth_offset_m) <= 0.2))
+    p.push_back("depth_offset_m must be within +-0.2 m");
   if (!(std::isfinite(grazing_cos) && grazing_cos >= 0.0 && grazing_cos < 1.0))
     p.push_back("grazing_cos must be in [0, 1)");
   if (max_jitter_px < 0 || max_jitter_px > 16) p.push_back("max_jitter_px must be in [0, 16]");
@@ -321,6 +325,71 @@ std::vector<std::string> NoiseConfig::validate() const {
   if (edge_jump_min_m == 0.0 && edge_jump_rel == 0.0)
     p.push_back("edge_jump_min_m and edge_jump_rel cannot both be 0 (every pixel an edge)");
   return p;
+}
+
+NoiseConfig loadNoiseModelYaml(const std::string& path) {
+  const std::string section = "noise_model";
+  const auto entries = readYamlSection(path, section);
+  NoiseConfig c;
+  for (const auto& [key, value] : entries)
+    if (key == "base") {
+      try {
+        c = NoiseConfig::forModel(parseNoiseModel(value.text));
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument(yamlProblem(path, section, key, value.line, e.what()));
+      }
+    }
+  // Every settable field once, by its name in the struct.
+  struct Field {
+    const char* name;
+    double* real;
+    int* integer;
+  };
+  const Field fields[] = {
+      {"sigma_const_m", &c.sigma_const_m, nullptr},
+      {"sigma_linear", &c.sigma_linear, nullptr},
+      {"sigma_quad_per_m", &c.sigma_quad_per_m, nullptr},
+      {"lateral_fwhm_px", &c.lateral_fwhm_px, nullptr},
+      {"max_jitter_px", nullptr, &c.max_jitter_px},
+      {"edge_jump_min_m", &c.edge_jump_min_m, nullptr},
+      {"edge_jump_rel", &c.edge_jump_rel, nullptr},
+      {"edge_band_px", nullptr, &c.edge_band_px},
+      {"edge_dropout_prob", &c.edge_dropout_prob, nullptr},
+      {"edge_bleed_prob", &c.edge_bleed_prob, nullptr},
+      {"speckle_prob", &c.speckle_prob, nullptr},
+      {"speckle_radius_px", nullptr, &c.speckle_radius_px},
+      {"random_dropout_prob", &c.random_dropout_prob, nullptr},
+      {"grazing_cos", &c.grazing_cos, nullptr},
+      {"grazing_dropout_prob", &c.grazing_dropout_prob, nullptr},
+      {"quantum_m", &c.quantum_m, nullptr},
+      {"depth_scale_bias", &c.depth_scale_bias, nullptr},
+      {"depth_offset_m", &c.depth_offset_m, nullptr},
+  };
+  for (const auto& [key, value] : entries) {
+    if (key == "base") continue;
+    const Field* f = nullptr;
+    for (const Field& cand : fields)
+      if (key == cand.name) f = &cand;
+    if (!f) {
+      std::string known = "base";
+      for (const Field& cand : fields) known += std::string(", ") + cand.name;
+      throw std::invalid_argument(
+          yamlProblem(path, section, key, value.line, "unknown key (known: " + known + ")"));
+    }
+    const double v = yamlNumber(path, section, key, value);
+    if (f->real) {
+      *f->real = v;
+    } else {
+      if (v != std::floor(v) || std::abs(v) > 1e6)
+        throw std::invalid_argument(yamlProblem(path, section, key, value.line,
+                                                "must be a whole number (got " + value.text + ")"));
+      *f->integer = static_cast<int>(v);
+    }
+  }
+  const auto problems = c.validate();
+  if (!problems.empty())
+    throw std::invalid_argument(path + ": " + section + ": " + joinProblems(problems));
+  return c;
 }
 
 std::vector<std::uint8_t> edgeDistance(const DepthImage& depth, const NoiseConfig& c) {
@@ -397,7 +466,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
   if (c.model == NoiseModel::kNone && c.sigmaAt(1.0) == 0.0 && c.lateral_fwhm_px == 0.0 &&
       c.edge_dropout_prob == 0.0 && c.edge_bleed_prob == 0.0 && c.speckle_prob == 0.0 &&
       c.random_dropout_prob == 0.0 && c.grazing_dropout_prob == 0.0 && c.quantum_m == 0.0 &&
-      c.depth_scale_bias == 0.0) {
+      c.depth_scale_bias == 0.0 && c.depth_offset_m == 0.0) {
     DepthImage out = clean;
     for (float& z : out.data)
       if (!(z >= range.min_m && z <= range.max_m)) z = 0.0f;
@@ -479,6 +548,7 @@ DepthImage applyNoise(const DepthImage& clean, const NoiseConfig& c, std::uint64
         }
 
         z *= 1.0 + c.depth_scale_bias;
+        if (z > 0.0) z += c.depth_offset_m;
         if (z > 0.0) {
           const double sigma = c.sigmaAt(z);
           if (sigma > 0.0) {

@@ -60,6 +60,9 @@ struct NoiseConfig {
   /// fits +0.0063 for its L515 (camera vs laser-measured depth), which alone makes a tracker
   /// overestimate travel along the view by 0.63 %.
   double depth_scale_bias = 0.0;
+  /// Systematic depth offset added to every return after the scale error, metres (a time-of-flight
+  /// camera's zero error; camera_check fits it with the scale). 0 in every preset.
+  double depth_offset_m = 0.0;
 
   /// Preset of the named model: L515 sigma = 1.5 mm + 1.1 mm/m z (crosses 5 mm just above 3 m,
   /// thesis 4.1.3), 2.4 px lateral resolution (thesis 4.1.4), edge drop-outs, drop-outs at
@@ -74,6 +77,14 @@ struct NoiseConfig {
   /// Every problem (negative sigma, probability outside [0, 1], ...); empty = valid.
   std::vector<std::string> validate() const;
 };
+
+/// Loads the `noise_model:` section of a YAML file (camera_check writes one): `base` names the
+/// preset the unmeasured effects come from (l515 | d435 | none; default none), every other key
+/// sets the NoiseConfig field of the same name (sigma_const_m, sigma_linear, sigma_quad_per_m,
+/// lateral_fwhm_px, depth_scale_bias, depth_offset_m, quantum_m, ...). Throws
+/// std::invalid_argument naming the file, line and key of an unknown key, a non-number, or a
+/// config that does not validate. Thread-safe.
+NoiseConfig loadNoiseModelYaml(const std::string& path);
 
 /// Applies the noise model to a clean rendered frame (metres, 0 = no return). Pixels pushed
 /// outside `range` become 0. `cos_incidence` (one value per pixel, from
