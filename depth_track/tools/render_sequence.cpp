@@ -4,6 +4,8 @@
 //   DIR/groundtruth.txt     "t tx ty tz qx qy qz qw", camera (optical frame) to world T_W_C
 //   DIR/rig.txt             ServoTrack runs only: "t track_pos_m pitch_deg yaw_deg" per frame
 // Example: render_sequence --run xtest1_05_chair --noise l515 --seed 1 --out /tmp/xtest1
+//          render_sequence --run rt3 --noise-model my_camera.yaml --out /tmp/rt3  (camera_check's
+//          YAML)
 #include <CLI/CLI.hpp>
 
 #include <chrono>
@@ -52,7 +54,13 @@ int main(int argc, char** argv) {
   std::string known;
   for (const auto& k : sim::knownRuns()) known += (known.empty() ? "" : ", ") + k;
   app.add_option("--run", run_name, "run name: " + known)->required();
-  app.add_option("--noise", noise_name, "noise model: l515 | d435 | none")->capture_default_str();
+  auto* noise_opt = app.add_option("--noise", noise_name, "noise model: l515 | d435 | none")
+                        ->capture_default_str();
+  std::string noise_model_path;
+  app.add_option("--noise-model", noise_model_path,
+                 "noise model YAML (camera_check's noise_model section) instead of --noise; "
+                 "--depth-bias, when given, overrides its bias")
+      ->excludes(noise_opt);
   app.add_option("--seed", seed, "noise seed (same seed = same frames)")->capture_default_str();
   app.add_option("--out", out_dir, "output folder (created; existing files are overwritten)")
       ->required();
@@ -60,9 +68,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-frames", max_frames, "render only the first N frames (-1 = all)")
       ->capture_default_str();
-  app.add_option("--depth-bias", depth_bias,
-                 "systematic depth scale error (0.0063 = the thesis's L515, table 4.2)")
-      ->capture_default_str();
+  auto* bias_opt = app.add_option("--depth-bias", depth_bias,
+                                  "systematic depth scale error (0.0063 = the thesis's L515, "
+                                  "table 4.2)")
+                       ->capture_default_str();
   app.add_option("--scan-time-ms", scan_time_ms,
                  "row-scan time of a frame, ms (0 = all rows at the stamp; moving runs only)")
       ->capture_default_str();
@@ -73,8 +82,11 @@ int main(int argc, char** argv) {
     if (!(scan_time_ms >= 0.0 && scan_time_ms <= 1000.0))
       throw std::invalid_argument("--scan-time-ms must be in [0, 1000]");
     run.scan_time_s = scan_time_ms / 1000.0;
-    sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name));
-    noise.depth_scale_bias = depth_bias;
+    sim::NoiseConfig noise = noise_model_path.empty()
+                                 ? sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name))
+                                 : sim::loadNoiseModelYaml(noise_model_path);
+    if (noise_model_path.empty() || bias_opt->count() > 0) noise.depth_scale_bias = depth_bias;
+    if (!noise_model_path.empty()) noise_name = noise_model_path;
     if (threads < 0) throw std::invalid_argument("--threads must be >= 0");
     namespace fs = std::filesystem;
     fs::create_directories(fs::path(out_dir) / "depth");

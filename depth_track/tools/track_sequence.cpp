@@ -10,6 +10,7 @@
 #include <memory>
 #include <sstream>
 
+#include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/se3.hpp"
@@ -125,6 +126,10 @@ int main(int argc, char** argv) {
   app.add_option("--depth-scale", depth_scale,
                  "metres per 16-bit depth unit (TUM: 0.0002 = 1/5000; RealSense: 0.001)")
       ->capture_default_str();
+  std::string depth_correction_path;
+  app.add_option("--depth-correction", depth_correction_path,
+                 "camera_check YAML whose depth_correction (scale, offset_m) is applied to every "
+                 "frame: z = (z - offset_m) / scale");
   app.add_option("--d-min", range.min_m, "nearest valid depth, m")->capture_default_str();
   app.add_option("--d-max", range.max_m, "farthest valid depth, m")->capture_default_str();
   app.add_option("--noise", noise_name, "rendered noise model: l515 | d435 | none")
@@ -195,6 +200,9 @@ int main(int argc, char** argv) {
       throw std::invalid_argument("--depth-scale is metres per unit; " +
                                   std::to_string(depth_scale) +
                                   " looks like units per metre (TUM: 0.0002 = 1/5000)");
+    const DepthCorrection correction = depth_correction_path.empty()
+                                           ? DepthCorrection{}
+                                           : loadDepthCorrectionYaml(depth_correction_path);
     if (!config_path.empty()) loadTrackerParamsYaml(config_path, config);
     for (const auto& [name, opt] : param_opts)
       if (opt->count() > 0) setTrackerParam(config, name, values[name]);
@@ -272,7 +280,8 @@ int main(int argc, char** argv) {
     for (std::size_t i = 0; i < n; ++i) {
       FrameStatus st;
       try {
-        const DepthImage depth = source->frame(i);
+        DepthImage depth = source->frame(i);
+        applyDepthCorrection(depth, correction);
         if (!fuse_traj.empty()) {  // known poses (thesis ImageTest=2): nearest stamp within 20 ms
           const double t = source->stamp(i);
           const auto it = std::min_element(

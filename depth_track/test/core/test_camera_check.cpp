@@ -29,26 +29,12 @@ const std::vector<double> kThesisDistances = {0.56, 0.6, 0.76, 1.2,  1.47, 1.77,
 constexpr double kDiameter = 0.6;
 constexpr double kWallGap = 0.6;  // wall behind the target's face, m
 
-/// Camera at (0, 0, 1) looking along +x; a disc of kDiameter with its face `distance_m` ahead
-/// (on a post behind it), a wall kWallGap further and the floor. No disc: the wall alone at
-/// `distance_m`.
-Scene setUp(double distance_m, bool disc) {
-  Scene s;
-  s.name = "calibration";
-  const double wall_x = disc ? distance_m + kWallGap : distance_m;
-  s.addRectangle({wall_x, 0.0, 1.5}, -Eigen::Vector3d::UnitX(), 6.0, 3.0, "wall");
-  s.addRectangle({wall_x / 2, 0.0, 0.0}, Eigen::Vector3d::UnitZ(), wall_x / 2, 6.0, "floor");
-  if (disc) {
-    s.addCylinder({distance_m, 0.0, 1.0}, {distance_m + 0.02, 0.0, 1.0}, kDiameter / 2, "disc");
-    s.addCylinder({distance_m + 0.1, 0.0, 0.0}, {distance_m + 0.1, 0.0, 1.0}, 0.02, "post");
-  }
-  return s;
-}
-
-Eigen::Isometry3d cameraPose() {
+/// A camera `distance_m` in front of the calibration target's face (or of the wall alone),
+/// looking at it square on.
+Eigen::Isometry3d cameraAt(double distance_m) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = rotationBodyFromOptical();
-  T.translation() = Eigen::Vector3d(0.0, 0.0, 1.0);
+  T.translation() = Eigen::Vector3d(-distance_m, 0.0, 1.0);
   return T;
 }
 
@@ -57,8 +43,8 @@ SegmentFrames recordSegment(double distance_m, bool disc, const NoiseConfig& noi
                             double true_k_px, std::uint64_t seed) {
   const PinholeIntrinsics K = PinholeIntrinsics::isotropic(640, 480, true_k_px);
   const DepthRange range;
-  const RenderedDepth clean =
-      renderDepthWithIncidence(setUp(distance_m, disc), K, cameraPose(), range);
+  const RenderedDepth clean = renderDepthWithIncidence(
+      calibrationTargetScene(kDiameter, kWallGap, disc), K, cameraAt(distance_m), range);
   SegmentFrames seg;
   seg.label = std::to_string(distance_m).substr(0, 4) + " m";
   seg.reference_distance_m = distance_m;

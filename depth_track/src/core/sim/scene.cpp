@@ -500,5 +500,20 @@ Scene hallwayScene() {
   return s;
 }
 
+Scene calibrationTargetScene(double diameter_m, double wall_gap_m, bool with_target) {
+  Scene s;
+  s.name = "calibration_target";
+  const double wall_x = with_target ? wall_gap_m : 0.0;
+  // Wide enough for the view from 4 m away; the floor runs from behind such a camera to the wall.
+  s.addRectangle(V(wall_x, 0.0, 1.5), -V::UnitX(), 6.0, 3.0, "wall");
+  s.addRectangle(V(0.5 * (wall_x - 5.0), 0.0, 0.0), V::UnitZ(), 6.0, 0.5 * (wall_x + 5.0), "floor",
+                 V::UnitX());
+  if (with_target) {
+    s.addCylinder(V(0.0, 0.0, 1.0), V(0.02, 0.0, 1.0), 0.5 * diameter_m, "target disc");
+    s.addCylinder(V(0.1, 0.0, 0.0), V(0.1, 0.0, 1.0), 0.02, "target post");
+  }
+  return s;
+}
+
 }  // namespace sim
 }  // namespace depth_track

@@ -81,5 +81,13 @@ Scene furnishedRoomScene();
 /// radiators, a cabinet, a bench, a console table and a shoe rack along the walls.
 Scene hallwayScene();
 
+/// Camera calibration set-up (thesis §4.1.3, table 4.2): a round target of `diameter_m` (a disc
+/// 20 mm thick on a post behind it, so nothing but the disc lies in front of its outline) with its
+/// face centred at (0, 0, 1.0) facing -x, a wall `wall_gap_m` behind the face, and the floor. A
+/// camera at (-d, 0, 1.0) looking along +x sees the face at depth d. Without the target the wall
+/// stands at x = 0 (the flat-wall test).
+Scene calibrationTargetScene(double diameter_m = 0.6, double wall_gap_m = 0.6,
+                             bool with_target = true);
+
 }  // namespace sim
 }  // namespace depth_track
