@@ -354,6 +354,8 @@ bool TrackDrv::handleCommand(const Frame& f) {
         move_pending_ = false;
         sendAck(move_seq_, move_id_, AckStatus::kAborted);
       }
+      // A stop already decelerating is superseded: each command gets exactly one final ack.
+      if (stop_pending_) sendAck(stop_seq_, stop_id_, AckStatus::kAborted);
       stop_pending_ = true;
       stop_seq_ = f.seq;
       stop_id_ = f.id;

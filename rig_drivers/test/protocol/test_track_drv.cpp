@@ -72,6 +72,12 @@ struct Rig {
     }
     return -1;
   }
+  /// Homes, then starts a 1 m move at 0.2 m/s and 0.4 m/s^2 (seq 2) and lets it reach cruise.
+  void cruise() {
+    home();
+    move(2, 1.0, false, 0.2, 0.4);
+    run(1.5, 10);
+  }
   void home() {
     sendCmd(drv, 1, MsgId::kInit);
     ASSERT_EQ(runUntilDone(1, 120.0, 200), st(AckStatus::kDone));
@@ -298,9 +304,7 @@ TEST(TrackDrv, EmergencyStopLatchesUntilResetAndInit) {
 
 TEST(TrackDrv, StopDeceleratesWithinAccelLimit) {
   Rig rig;
-  rig.home();
-  rig.move(2, 1.0, false, 0.2, 0.4);
-  rig.run(1.5, 10);  // cruising at 0.2 m/s
+  rig.cruise();
   const int64_t before = rig.hw.steps;
   rig.hw.step_times_us.clear();
   sendCmd(rig.drv, 3, MsgId::kStop);
@@ -316,6 +320,28 @@ TEST(TrackDrv, StopDeceleratesWithinAccelLimit) {
   rig.move(4, 0.01, true);
   EXPECT_EQ(rig.runUntilDone(4, 5.0), st(AckStatus::kDone));
   EXPECT_NEAR(rig.drv.positionM(), stopped + 0.01, kMps);
+}
+
+// Found by fuzz_firmware: a stop arriving while an earlier stop was still braking took its place,
+// and the earlier stop never got a final ack (a host waiting for it would wait forever).
+TEST(TrackDrv, SecondStopSupersedesTheFirstWithOneFinalAckEach) {
+  Rig rig;
+  rig.cruise();
+  const int64_t before = rig.hw.steps;
+  sendCmd(rig.drv, 3, MsgId::kStop);
+  rig.run(0.1, 10);  // braking takes 0.5 s at 0.4 m/s^2
+  sendCmd(rig.drv, 4, MsgId::kStop);
+  EXPECT_EQ(rig.runUntilDone(4, 5.0, 10), st(AckStatus::kDone));
+  const auto first = rig.hw.out.acksFor(3);
+  ASSERT_EQ(first.size(), 2u);
+  EXPECT_EQ(first[0].status, AckStatus::kAccepted);
+  EXPECT_EQ(first[1].status, AckStatus::kAborted);
+  const auto second = rig.hw.out.acksFor(4);
+  ASSERT_EQ(second.size(), 2u);
+  EXPECT_EQ(second[0].status, AckStatus::kAccepted);
+  EXPECT_EQ(rig.drv.state(), TrackStateCode::kReady);
+  // the second stop keeps the first one's braking: v^2 / 2a = 50 mm
+  EXPECT_NEAR((rig.hw.steps - before) * kMps, 0.05, 2 * kMps);
 }
 
 TEST(TrackDrv, RejectsWhileBusyAndUnsupported) {
