@@ -144,7 +144,11 @@ void FirmwareBoard::onFrame(const Frame& f) {
   switch (f.id) {
     case MsgId::kPing: {
       CmdPing ping;
-      if (decodePayload(f, ping) != DecodeError::kNone) return;
+      if (decodePayload(f, ping) != DecodeError::kNone) {
+        // Unanswered, a malformed ping would look like a lost link to the host.
+        sendAck(f.seq, f.id, AckStatus::kBadArgument);
+        return;
+      }
       Pong pong;
       pong.host_time_ms = ping.host_time_ms;
       pong.board_time_ms = nowMs();

@@ -344,6 +344,29 @@ TEST(TrackDrv, SecondStopSupersedesTheFirstWithOneFinalAckEach) {
   EXPECT_NEAR((rig.hw.steps - before) * kMps, 0.05, 2 * kMps);
 }
 
+// Found by fuzz_firmware: a ping with a payload of the wrong size got no answer at all, which the
+// host cannot tell from a lost link.
+TEST(TrackDrv, MalformedPingIsRejectedNotIgnored) {
+  Rig rig;
+  const uint8_t two_bytes[2] = {1, 2};
+  uint8_t buf[rp::kMaxFrameSize];
+  const size_t n =
+      rp::encodeFrame(rp::BoardId::kTrack, MsgId::kPing, 9, two_bytes, 2, buf, sizeof buf);
+  rig.drv.receive(buf, n);
+  const auto acks = rig.hw.out.acksFor(9);
+  ASSERT_EQ(acks.size(), 1u);
+  EXPECT_EQ(acks[0].acked_id, MsgId::kPing);
+  EXPECT_EQ(acks[0].status, AckStatus::kBadArgument);
+  EXPECT_TRUE(rig.hw.out.all<rp::Pong>().empty());
+  rp::CmdPing ping;
+  ping.host_time_ms = 777;
+  sendTo(rig.drv, 10, ping);  // a well-formed ping still gets its pong and no ack
+  const auto pongs = rig.hw.out.all<rp::Pong>();
+  ASSERT_EQ(pongs.size(), 1u);
+  EXPECT_EQ(pongs[0].host_time_ms, 777u);
+  EXPECT_TRUE(rig.hw.out.acksFor(10).empty());
+}
+
 TEST(TrackDrv, RejectsWhileBusyAndUnsupported) {
   Rig rig;
   rig.hw.start_m = 0.5;
