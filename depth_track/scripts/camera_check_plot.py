@@ -35,6 +35,20 @@ def sigma_of(model, z):
     return model["sigma_const_m"] + model["sigma_linear"] * z + model["sigma_quad_per_m"] * z * z
 
 
+def finish(fig, ax, outdir, name, title, xlabel, ylabel, written, legend_size=8, ncol=1):
+    """Labels, grid and legend of one figure, saved as outdir/name."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=legend_size, ncol=ncol)
+    ax.set_title(title)
+    fig.tight_layout()
+    path = os.path.join(outdir, name)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(path)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("report")
@@ -75,19 +89,11 @@ def main():
         ax.plot(grid, [1e3 * sigma_of(m, g) for g in grid], "--", label=f"built-in {name}")
     ax.axhline(5.0, color="grey", lw=0.8, ls=":")
     ax.text(0.02 * zmax, 5.1, "5 mm (voxel size)", color="grey", fontsize=8)
-    ax.set_xlabel("distance (m)")
-    ax.set_ylabel("depth standard deviation (mm)")
     top = max([1e3 * s["sigma_spatial_m"] for s in segs] + [6.0]) * 1.3
     ax.set_ylim(0, top)
     ax.set_xlim(0, zmax)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Depth noise against distance")
-    fig.tight_layout()
-    p = os.path.join(a.outdir, "sigma_vs_distance.png")
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    written.append(p)
+    finish(fig, ax, a.outdir, "sigma_vs_distance.png", "Depth noise against distance",
+           "distance (m)", "depth standard deviation (mm)", written)
 
     # ---- bias against distance
     ref = [(s["reference_distance_m"], s["camera_depth_m"]) for s in segs
@@ -101,17 +107,9 @@ def main():
                     label="fit: scale %+.3f %%, offset %+.2f mm" % (
                         100 * (fit["depth_scale"] - 1.0), 1e3 * fit["depth_offset_m"]))
         ax.axhline(0.0, color="grey", lw=0.8)
-        ax.set_xlabel("measured distance (m)")
-        ax.set_ylabel("depth error (mm)")
         ax.set_xlim(0, zmax)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        ax.set_title("Depth bias against distance")
-        fig.tight_layout()
-        p = os.path.join(a.outdir, "bias_vs_distance.png")
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
+        finish(fig, ax, a.outdir, "bias_vs_distance.png", "Depth bias against distance",
+               "measured distance (m)", "depth error (mm)", written)
 
     # ---- focal constant against distance
     k = [(d, s["cam_k_px"], s["cam_k_edge_corrected_px"]) for d, s in zip(z, segs)
@@ -127,17 +125,9 @@ def main():
             ax.axhline(fit["cam_k_px"], color="k", label="fit: CAM_K = %.1f px" % fit["cam_k_px"])
         fx = cc["intrinsics"]["fx"]
         ax.axhline(fx, color="grey", ls="--", label="camera_info fx = %.1f px" % fx)
-        ax.set_xlabel("distance (m)")
-        ax.set_ylabel("CAM_K (px)")
         ax.set_xlim(0, zmax)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        ax.set_title("Focal constant from the target's diameter")
-        fig.tight_layout()
-        p = os.path.join(a.outdir, "focal_vs_distance.png")
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
+        finish(fig, ax, a.outdir, "focal_vs_distance.png",
+               "Focal constant from the target's diameter", "distance (m)", "CAM_K (px)", written)
 
     # ---- edge spread functions
     if a.edge_csv and os.path.exists(a.edge_csv):
@@ -155,19 +145,13 @@ def main():
                         label=f"{name} ({d:.2f} m)" if d else name, lw=1)
             for lvl in (0.12, 0.5, 0.88):
                 ax.axhline(lvl, color="grey", lw=0.6, ls=":")
-            ax.set_xlabel("distance from the outline, outward (px)")
-            ax.set_ylabel("share of returns on the target's face")
             ax.set_ylim(-0.02, 1.02)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, ncol=2)
             sp = fit["edge_spread_px"]
-            ax.set_title("Edge spread across the target's outline" +
-                         (" (12-88 %%: %.2f px)" % sp if finite(sp) else ""))
-            fig.tight_layout()
-            p = os.path.join(a.outdir, "edge_spread.png")
-            fig.savefig(p, dpi=110)
-            plt.close(fig)
-            written.append(p)
+            finish(fig, ax, a.outdir, "edge_spread.png",
+                   "Edge spread across the target's outline" +
+                   (" (12-88 %%: %.2f px)" % sp if finite(sp) else ""),
+                   "distance from the outline, outward (px)",
+                   "share of returns on the target's face", written, legend_size=7, ncol=2)
 
     for p in written:
         print(f"camera_check_plot: wrote {p}")

@@ -241,28 +241,44 @@ double crossing(const std::vector<Block>& b, double level) {
   return kNaN;
 }
 
+/// 4-connected flood fill over a w x h image: `seeds(add)` calls add(u, v) for each start pixel;
+/// `take(u, v)` marks a pixel and returns true if it joins the fill (and is expanded from).
+template <class Take, class Seeds>
+void floodFill(int w, int h, Take&& take, Seeds&& seeds) {
+  std::deque<std::pair<int, int>> q;
+  auto add = [&](int u, int v) {
+    if (take(u, v)) q.emplace_back(u, v);
+  };
+  seeds(add);
+  while (!q.empty()) {
+    const auto [u, v] = q.front();
+    q.pop_front();
+    if (u > 0) add(u - 1, v);
+    if (u + 1 < w) add(u + 1, v);
+    if (v > 0) add(u, v - 1);
+    if (v + 1 < h) add(u, v + 1);
+  }
+}
+
+/// One line of n pixels `stride` apart: out = 1 where every pixel within r along the line (clipped
+/// at its ends) is set.
+void erodeLine(const char* in, char* out, int n, std::size_t stride, int r) {
+  std::vector<int> prefix(n + 1, 0);
+  for (int i = 0; i < n; ++i) prefix[i + 1] = prefix[i] + (in[i * stride] ? 1 : 0);
+  for (int i = 0; i < n; ++i) {
+    const int lo = std::max(0, i - r), hi = std::min(n - 1, i + r);
+    out[i * stride] = prefix[hi + 1] - prefix[lo] == hi - lo + 1;
+  }
+}
+
 /// Chessboard erosion of a mask by r pixels; pixels outside the image count as set (a target
-/// clipped by the image border keeps its face up to the border).
+/// clipped by the image border keeps its face up to the border). Separable: rows, then columns.
 std::vector<char> erode(const std::vector<char>& m, int w, int h, int r) {
   if (r <= 0) return m;
-  // Separable: a pixel survives when every pixel of its row span, then of its column span, is set.
   std::vector<char> rows(m.size(), 0), out(m.size(), 0);
-  for (int v = 0; v < h; ++v) {
-    std::vector<int> prefix(w + 1, 0);
-    for (int u = 0; u < w; ++u) prefix[u + 1] = prefix[u] + (m[v * w + u] ? 1 : 0);
-    for (int u = 0; u < w; ++u) {
-      const int lo = std::max(0, u - r), hi = std::min(w - 1, u + r);
-      rows[v * w + u] = prefix[hi + 1] - prefix[lo] == hi - lo + 1;
-    }
-  }
-  for (int u = 0; u < w; ++u) {
-    std::vector<int> prefix(h + 1, 0);
-    for (int v = 0; v < h; ++v) prefix[v + 1] = prefix[v] + (rows[v * w + u] ? 1 : 0);
-    for (int v = 0; v < h; ++v) {
-      const int lo = std::max(0, v - r), hi = std::min(h - 1, v + r);
-      out[v * w + u] = prefix[hi + 1] - prefix[lo] == hi - lo + 1;
-    }
-  }
+  for (int v = 0; v < h; ++v)
+    erodeLine(&m[static_cast<std::size_t>(v) * w], &rows[static_cast<std::size_t>(v) * w], w, 1, r);
+  for (int u = 0; u < w; ++u) erodeLine(&rows[u], &out[u], h, w, r);
   return out;
 }
 
@@ -415,24 +431,19 @@ SegmentResult measureSegment(const SegmentFrames& seg, const PinholeIntrinsics& 
   // ---- region: pixels connected to the seed window whose median depth lies on the plane
   auto grow = [&](const InvPlane& plane) {
     std::vector<char> in(npx, 0);
-    std::deque<std::pair<int, int>> q;
-    auto accept = [&](int u, int v) {
-      const std::size_t i = static_cast<std::size_t>(v) * w + u;
-      if (in[i] || med[i] <= 0.0f) return;
-      if (std::abs(med[i] - plane.depth(geo.xs[u], geo.ys[v])) >= tol_med) return;
-      in[i] = 1;
-      q.emplace_back(u, v);
-    };
-    for (int v = sv - sr; v <= sv + sr; ++v)
-      for (int u = su - sr; u <= su + sr; ++u) accept(u, v);
-    while (!q.empty()) {
-      const auto [u, v] = q.front();
-      q.pop_front();
-      if (u > 0) accept(u - 1, v);
-      if (u + 1 < w) accept(u + 1, v);
-      if (v > 0) accept(u, v - 1);
-      if (v + 1 < h) accept(u, v + 1);
-    }
+    floodFill(
+        w, h,
+        [&](int u, int v) {
+          const std::size_t i = static_cast<std::size_t>(v) * w + u;
+          if (in[i] || med[i] <= 0.0f) return false;
+          if (std::abs(med[i] - plane.depth(geo.xs[u], geo.ys[v])) >= tol_med) return false;
+          in[i] = 1;
+          return true;
+        },
+        [&](auto&& seed) {
+          for (int v = sv - sr; v <= sv + sr; ++v)
+            for (int u = su - sr; u <= su + sr; ++u) seed(u, v);
+        });
     return in;
   };
   // Plane samples of a mask on an image, at most ~40 000 (evenly strided) to bound the fit's cost.
@@ -455,25 +466,18 @@ SegmentResult measureSegment(const SegmentFrames& seg, const PinholeIntrinsics& 
 
   // Filled region: the region and every hole it encloses (drop-outs on the face).
   std::vector<char> filled(npx, 1);
-  {
-    std::deque<std::pair<int, int>> q;
-    auto out = [&](int u, int v) {
-      const std::size_t i = static_cast<std::size_t>(v) * w + u;
-      if (!filled[i] || region[i]) return;
-      filled[i] = 0;
-      q.emplace_back(u, v);
-    };
-    for (int u = 0; u < w; ++u) out(u, 0), out(u, h - 1);
-    for (int v = 0; v < h; ++v) out(0, v), out(w - 1, v);
-    while (!q.empty()) {
-      const auto [u, v] = q.front();
-      q.pop_front();
-      if (u > 0) out(u - 1, v);
-      if (u + 1 < w) out(u + 1, v);
-      if (v > 0) out(u, v - 1);
-      if (v + 1 < h) out(u, v + 1);
-    }
-  }
+  floodFill(
+      w, h,
+      [&](int u, int v) {
+        const std::size_t i = static_cast<std::size_t>(v) * w + u;
+        if (!filled[i] || region[i]) return false;
+        filled[i] = 0;
+        return true;
+      },
+      [&](auto&& seed) {
+        for (int u = 0; u < w; ++u) seed(u, 0), seed(u, h - 1);
+        for (int v = 0; v < h; ++v) seed(0, v), seed(w - 1, v);
+      });
 
   // ---- is it a bounded round target? Outline pixels inside the image, background behind them.
   const double aspect = K.fx / K.fy;  // rows scaled to columns: a frontal disc is a circle

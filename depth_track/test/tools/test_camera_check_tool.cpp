@@ -9,7 +9,6 @@
 #include <rosbag/bag.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
-#include <sys/wait.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
@@ -26,6 +25,7 @@
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "tool_test.hpp"
 #include "tum_bag.hpp"
 
 #ifndef CAMERA_CHECK
@@ -42,35 +42,11 @@ constexpr double kTrueK = 460.0;  // in camera_info too: the tool must read it f
 constexpr double kBias = 0.005;
 const std::vector<double> kStations = {0.8, 1.5, 2.5};
 
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char tmpl[] = "/tmp/dt_camera_check_XXXXXX";
-    const char* d = mkdtemp(tmpl);
-    path = d ? d : "/tmp";
-  }
-  ~TmpDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
+using tool_test::TmpDir;
+using tool_test::ToolRun;
 
-struct ToolRun {
-  int rc = -1;
-  std::string output;
-};
-
-ToolRun runTool(const std::string& args, const std::string& dir) {
-  const std::string log = dir + "/tool.log";
-  const int status =
-      std::system((std::string(CAMERA_CHECK) + " " + args + " > " + log + " 2>&1").c_str());
-  ToolRun r;
-  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream in(log);
-  std::stringstream s;
-  s << in.rdbuf();
-  r.output = s.str();
-  return r;
+ToolRun runTool(const std::string& args, const std::string& log_dir) {
+  return tool_test::runTool(CAMERA_CHECK, args, log_dir);
 }
 
 PinholeIntrinsics camera() { return PinholeIntrinsics::isotropic(640, 480, kTrueK); }

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "depth_track/core/tum_io.hpp"
+#include "tool_test.hpp"
 #include "tum_bag.hpp"
 
 #ifndef TUM_TO_BAG
@@ -44,35 +45,11 @@ std::string teddyDir() {
   return candidates.back();
 }
 
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char tmpl[] = "/tmp/dt_tum_to_bag_XXXXXX";
-    const char* d = mkdtemp(tmpl);
-    path = d ? d : "/tmp";
-  }
-  ~TmpDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
-struct ToolRun {
-  int rc = -1;
-  std::string output;  ///< stdout and stderr
-};
+using tool_test::TmpDir;
+using tool_test::ToolRun;
 
 ToolRun runTool(const std::string& args, const std::string& log_dir) {
-  const std::string log = log_dir + "/tool.log";
-  const std::string cmd = std::string(TUM_TO_BAG) + " " + args + " > " + log + " 2>&1";
-  const int status = std::system(cmd.c_str());
-  ToolRun r;
-  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream in(log);
-  std::stringstream s;
-  s << in.rdbuf();
-  r.output = s.str();
-  return r;
+  return tool_test::runTool(TUM_TO_BAG, args, log_dir);
 }
 
 std::vector<std::string> lines(const std::string& path) {
