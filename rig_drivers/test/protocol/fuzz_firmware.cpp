@@ -212,7 +212,9 @@ struct Exec {
   bool ambiguous = false;  ///< re-run while an earlier run of the same seq/id was open
   uint64_t t_accept_us = 0;
   uint32_t wait_ms = 0;
-  bool absolute_target = false;
+  bool track_move = false;  ///< a valid CmdTrackMove: where it must end is known once accepted
+  rp::CmdTrackMove move;
+  bool has_target = false;
   int64_t target_steps = 0;
 };
 
@@ -602,11 +604,7 @@ class Rig {
     x.t_accept_us = t_us_;
     rp::CmdWait w;
     if (rp::decodePayload(c, w) == DecodeError::kNone) x.wait_ms = w.wait_ms;
-    rp::CmdTrackMove m;
-    if (rp::decodePayload(c, m) == DecodeError::kNone && !(m.flags & rp::CmdTrackMove::kRelative)) {
-      x.absolute_target = true;
-      x.target_steps = std::llround(m.target_um * 1e-6 / mps_);
-    }
+    x.track_move = l.kind == Kind::kTrack && rp::decodePayload(c, x.move) == DecodeError::kNone;
     // CarDRV mode 2: one move at a time.
     rp::CmdServo s;
     const bool must_be_busy = !batched_ && l.kind == Kind::kCar && c.id == MsgId::kServo &&
@@ -657,22 +655,36 @@ class Rig {
                name(a.status), name(a.acked_id), a.acked_seq);
     if (Remembered* r = l.remembered(a.acked_seq, a.acked_id)) r->status = a.status;
     Exec& x = it->second;
-    if (x.ambiguous) return;
+    if (x.ambiguous) {
+      if (l.kind == Kind::kTrack) commanded_known_ = false;  // it may have moved the base
+      return;
+    }
     if (a.status == AckStatus::kAccepted) {
       FUZZ_CHECK(own_answer && !x.answered, "%s: %s seq %u accepted %s", l.board_name,
                  name(a.acked_id), a.acked_seq, x.answered ? "again" : "after its answer");
       x.answered = true;
       x.open = true;
+      if (x.track_move) {
+        // Relative targets add to the last commanded position (track_drv.hpp), not to the
+        // rounded step count: the model keeps that position from what the board acknowledged.
+        const bool rel = (x.move.flags & rp::CmdTrackMove::kRelative) != 0;
+        const double target_m = (rel ? commanded_m_ : 0.0) + x.move.target_um * 1e-6;
+        x.has_target = !rel || commanded_known_;
+        x.target_steps = std::llround(target_m / mps_);
+        commanded_m_ = target_m;
+      }
       return;
     }
     FUZZ_CHECK(x.open || (own_answer && !x.answered), "%s: second final ack %s for %s seq %u",
                l.board_name, name(a.status), name(a.acked_id), a.acked_seq);
+    const bool was_open = x.open;
     x.answered = true;
     x.open = false;
-    checkFinal(l, a, x);
+    checkFinal(l, a, x, was_open);
   }
 
-  void checkFinal(Link& l, const rp::Ack& a, const Exec& x) {
+  // `was_open`: it had been accepted before this final ack.
+  void checkFinal(Link& l, const rp::Ack& a, const Exec& x, bool was_open) {
     const MsgId id = a.acked_id;
     const bool done = a.status == AckStatus::kDone;
     if (id == MsgId::kWait && done) {
@@ -691,17 +703,29 @@ class Rig {
       if (isStop(id)) l.host_stopped = true;
       if (id == MsgId::kInit || id == MsgId::kStart || id == MsgId::kReset) l.host_stopped = false;
     }
-    if (batched_ || l.kind != Kind::kTrack) return;  // below: the board state right after
-    const int64_t pos = track_hw_.pos();
+    if (l.kind != Kind::kTrack) return;
+    const int64_t pos = track_hw_.pos();  // steps happen in update() only, not in a batch
+    // A move cut short (end of track, e-stop) or a stop that ended a motion leaves the commanded
+    // position where the carriage is; homing sets it to zero.
+    const bool init_done = id == MsgId::kInit && done;
+    if ((isMove(id) && (a.status == AckStatus::kEndOfTrack || a.status == AckStatus::kEStop)) ||
+        (isStop(id) && was_open && (done || a.status == AckStatus::kEStop)))
+      commanded_m_ = pos * mps_;
+    if (init_done) {
+      commanded_m_ = 0;
+      commanded_known_ = true;
+    }
+    if (batched_) return;  // below: the board state right after this command
     FUZZ_CHECK(!(id == MsgId::kInit && a.status == AckStatus::kFailed),
                "homing failed with the far sensor within reach (carriage at %lld)",
                static_cast<long long>(pos));
-    if (id == MsgId::kInit && done)
+    if (init_done)
       FUZZ_CHECK(pos == 0 && track_.positionSteps() == 0 && track_.homed(),
                  "init done with the carriage at %lld, board at %d", static_cast<long long>(pos),
                  track_.positionSteps());
-    if (id == MsgId::kTrackMove && done && x.absolute_target)
-      FUZZ_CHECK(pos == x.target_steps, "move to %lld done at %lld",
+    if (id == MsgId::kTrackMove && done && x.has_target)
+      FUZZ_CHECK(pos == x.target_steps, "%s move to %lld done at %lld",
+                 (x.move.flags & rp::CmdTrackMove::kRelative) ? "relative" : "absolute",
                  static_cast<long long>(x.target_steps), static_cast<long long>(pos));
     if (a.status == AckStatus::kEndOfTrack)
       FUZZ_CHECK(pos <= 0 || pos >= track_hw_.near(), "end of track at %lld (sensors 0, %lld)",
@@ -819,7 +843,9 @@ class Rig {
   uint64_t t_us_ = 0;
   int ticks_ = 0;
   bool forced_tick_ = false;
-  bool batched_ = false;  ///< several commands arrived in one receive()
+  bool batched_ = false;          ///< several commands arrived in one receive()
+  double commanded_m_ = 0;        ///< track: base of relative moves (model)
+  bool commanded_known_ = false;  ///< ... valid since an init done
   uint32_t next_seq_ = 1;
 };
 
