@@ -13,6 +13,7 @@
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/map/mapper.hpp"
+#include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
@@ -26,13 +27,6 @@ namespace {
 std::string dashed(std::string s) {
   std::replace(s.begin(), s.end(), '_', '-');
   return s;
-}
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5));
-  return v[i];
 }
 
 // A sequence of depth frames with stamps, from files or the renderer.
@@ -274,7 +268,7 @@ int main(int argc, char** argv) {
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
     Trajectory est, gt;
-    std::vector<double> ms;
+    RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
     std::map<std::string, int> failures;
     for (std::size_t i = 0; i < n; ++i) {
@@ -317,7 +311,7 @@ int main(int argc, char** argv) {
         ++tracked;
       else
         failures[st.failure.substr(0, st.failure.find(':'))]++;
-      if (st.ms_total > 0) ms.push_back(st.ms_total);
+      if (st.ms_total > 0) ms.add(st.ms_total);
       est.push_back({st.stamp_s, st.T_W_C});
       if (rendered) {
         const auto& T = rendered->run().T_W_C;
@@ -385,9 +379,8 @@ int main(int argc, char** argv) {
           vm.memoryBytes() / 1e6, vm.memoryBytes() / occ, vm.octreeMemoryBytes() / 1e6,
           vm.octreeMemoryBytes() / occ, map_path.empty() ? " (octree not flushed: no --map)" : "");
     }
-    std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked,
-                percentile(ms, 0.5), percentile(ms, 0.95),
-                mapper ? (" " + mapper->summary()).c_str() : "");
+    std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked, ms.median(),
+                ms.p95(), mapper ? (" " + mapper->summary()).c_str() : "");
     return bad_frames > 0 && tracked == 0 ? 1 : 0;
   } catch (const std::exception& e) {
     std::cerr << "track_sequence: " << e.what() << "\n";

@@ -1,7 +1,3 @@
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
-
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
@@ -267,6 +263,11 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
 
 CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
                         const PcaConfig& config, int threads) {
+  return reduceToCells(depth, intrinsics, config, WorkerPool(std::max(1, threads)));
+}
+
+CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                        const PcaConfig& config, const WorkerPool& pool) {
   checkFrameSize(depth, intrinsics);
   const auto problems = config.validate(depth.width, depth.height);
   if (!problems.empty()) throw DepthInputError("PCA reduction: " + joinProblems(problems));
@@ -307,16 +308,11 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
       }
     }
   };
-  if (threads > 1) {
+  if (pool.threads() > 1) {
     std::vector<std::vector<Cell>> rows(cloud.grid_h);
     std::vector<ReductionStats> row_stats(cloud.grid_h);
-    tbb::task_arena arena(threads);
-    arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<int>(0, cloud.grid_h, 4),
-                        [&](const tbb::blocked_range<int>& r) {
-                          for (int gy = r.begin(); gy < r.end(); ++gy)
-                            reduceRow(gy, &rows[gy], &row_stats[gy]);
-                        });
+    pool.parallelFor(0, cloud.grid_h, 4, [&](int b, int e) {
+      for (int gy = b; gy < e; ++gy) reduceRow(gy, &rows[gy], &row_stats[gy]);
     });
     std::size_t total = 0;
     for (const auto& r : rows) total += r.size();

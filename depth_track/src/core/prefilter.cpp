@@ -1,9 +1,5 @@
 #include "depth_track/core/prefilter.hpp"
 
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -178,7 +174,7 @@ void pairRowSame(const float* __restrict c, int width, int dx, float ws, float i
 // A bilateral pass with a (2 ry + 1) x (2 rx + 1) kernel by the pair-symmetric scheme above:
 // the full kernel (rx = ry = r) or one 1-D pass of the separable form (ry = 0 or rx = 0).
 DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterConfig& c,
-                         int threads) {
+                         const WorkerPool& pool) {
   const int W = in.width, H = in.height;
   std::ptrdiff_t ps = 0;
   const std::vector<float> padded =
@@ -218,17 +214,9 @@ DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterCo
                            den.data() + (y - y0 + dy) * as + rx + dx);
     }
   };
-  if (threads <= 1) {
-    for (int b = 0; b < n_bands; ++b) run_band(b);
-  } else {
-    tbb::task_arena arena(threads);
-    arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<int>(0, n_bands, 1),
-                        [&](const tbb::blocked_range<int>& br) {
-                          for (int b = br.begin(); b < br.end(); ++b) run_band(b);
-                        });
-    });
-  }
+  pool.parallelFor(0, n_bands, 1, [&](int b0, int b1) {
+    for (int b = b0; b < b1; ++b) run_band(b);
+  });
 
   // Merge in band order; columns outside the image and rows below it only ever received weight
   // 0 (their partners are the far stand-in) and are dropped.
@@ -259,6 +247,11 @@ DepthImage bilateralPass(const DepthImage& in, int rx, int ry, const PrefilterCo
 }  // namespace
 
 DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config, int threads) {
+  return applyPrefilter(depth, config, WorkerPool(std::max(1, threads)));
+}
+
+DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config,
+                          const WorkerPool& pool) {
   const auto problems = config.validate(depth.width, depth.height);
   if (!problems.empty())
     throw std::invalid_argument("invalid prefilter config: " + joinProblems(problems));
@@ -279,8 +272,8 @@ DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config
       if (depth.empty()) return depth;
       const int r = config.kernel_size_px / 2;
       if (config.bilateral_mode == BilateralMode::kFull)
-        return bilateralPass(depth, r, r, config, threads);
-      return bilateralPass(bilateralPass(depth, r, 0, config, threads), 0, r, config, threads);
+        return bilateralPass(depth, r, r, config, pool);
+      return bilateralPass(bilateralPass(depth, r, 0, config, pool), 0, r, config, pool);
     }
   }
   return depth;

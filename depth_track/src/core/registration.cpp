@@ -128,29 +128,8 @@ struct FmCache {
   std::vector<char> pass;  ///< per current cell: the verdict
 };
 
-// The reference cells as the association reads them: means and normals packed contiguously,
-// and the grid index padded by the search radius so the window needs no bounds checks.
-struct RefGrid {
-  int pad = 0, stride = 0;
-  std::vector<int> index;
-  std::vector<Eigen::Vector3f> mean, normal;
-
-  RefGrid(const CellCloud& reference, int radius)
-      : pad(radius), stride(reference.grid_w + 2 * radius) {
-    index.assign(static_cast<std::size_t>(stride) * (reference.grid_h + 2 * radius), -1);
-    mean.reserve(reference.cells.size());
-    normal.reserve(reference.cells.size());
-    for (std::size_t i = 0; i < reference.cells.size(); ++i) {
-      const Cell& c = reference.cells[i];
-      index[static_cast<std::size_t>(c.gy + pad) * stride + c.gx + pad] = static_cast<int>(i);
-      mean.push_back(c.mean_C);
-      normal.push_back(c.normal_C);
-    }
-  }
-};
-
-MatchResult associate(const CellCloud& reference, const RefGrid& grid, const CellCloud& current,
-                      const Moved& moved, const PinholeIntrinsics& K,
+MatchResult associate(const CellCloud& reference, const AssociationGrid& grid,
+                      const CellCloud& current, const Moved& moved, const PinholeIntrinsics& K,
                       const Eigen::Matrix3d& R_ref_cur, const RegistrationConfig& config,
                       int radius, FmCache* fm_cache = nullptr) {
   MatchResult result;
@@ -164,7 +143,11 @@ MatchResult associate(const CellCloud& reference, const RefGrid& grid, const Cel
   const float cs = static_cast<float>(reference.cell_size);
   const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
   const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
-  radius = std::min(radius, grid.pad);
+  radius = std::min(radius, grid.pad());
+  const int* grid_index = grid.index().data();
+  const Eigen::Vector3f* grid_mean = grid.mean().data();
+  const Eigen::Vector3f* grid_normal = grid.normal().data();
+  const int grid_pad = grid.pad(), grid_stride = grid.stride();
   // Overlap mask: a cell predicted within one cell of the border of the reference view may have
   // its true partner outside it, so it is not matched at all.
   const float margin = config.overlap_mask ? cs : 0.0f;
@@ -180,15 +163,14 @@ MatchResult associate(const CellCloud& reference, const RefGrid& grid, const Cel
     int best = -1;
     float best_c = std::numeric_limits<float>::max();
     for (int y = gy - radius; y <= gy + radius; ++y) {
-      const int* row =
-          grid.index.data() + static_cast<std::size_t>(y + grid.pad) * grid.stride + grid.pad;
+      const int* row = grid_index + static_cast<std::size_t>(y + grid_pad) * grid_stride + grid_pad;
       for (int x = gx - radius; x <= gx + radius; ++x) {
         const int r = row[x];
         if (r < 0) continue;
-        const Eigen::Vector3f d = p - grid.mean[r];
+        const Eigen::Vector3f d = p - grid_mean[r];
         const float d2 = d.squaredNorm();
         if (d2 > dist_max2) continue;
-        const Eigen::Vector3f& nr = grid.normal[r];
+        const Eigen::Vector3f& nr = grid_normal[r];
         const float cosang = n.dot(nr);
         if (cosang < cos_min) continue;
         // Rank candidates by their offset along the reference surface, not by the full 3D
@@ -262,7 +244,8 @@ double huberWeight(double residual, const RegistrationConfig& config) {
 // One point-to-plane Gauss-Newton step: minimises sum w (n_r . (p - q_r))^2 over the increment
 // [omega; v] with p' = p + omega x p + v. Returns false when the system is singular.
 bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const MatchResult& m,
-                       const RegistrationConfig& config, Vector6d* xi, double* rms) {
+                       const RegistrationConfig& config, Vector6d* xi, double* rms,
+                       Matrix6d* normal_matrix) {
   // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
   double h[21] = {0};
   Vector6d g = Vector6d::Zero();
@@ -290,6 +273,7 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
       for (int j = i; j < 6; ++j) H(i, j) = H(j, i) = h[k++];
   }
   *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
+  *normal_matrix = H;
   Eigen::Matrix<double, 6, 6> Hs = H;
   // A whisper of damping keeps directions the scene cannot observe (a bare wall) at zero motion.
   Hs.diagonal().array() += 1e-9 * Hs.trace() / 6.0 + 1e-12;
@@ -301,7 +285,8 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
 
 // Point-to-point step on the current pairs through alignPointToPoint.
 bool solvePointToPoint(const CellCloud& reference, const Moved& moved, const MatchResult& m,
-                       const RegistrationConfig& config, Eigen::Isometry3d* delta, double* rms) {
+                       const RegistrationConfig& config, Eigen::Isometry3d* delta, double* rms,
+                       Matrix6d* normal_matrix) {
   std::vector<Eigen::Vector3d> p(m.pairs.size()), q(m.pairs.size());
   std::vector<double> w(m.pairs.size());
   double sq = 0.0;
@@ -314,24 +299,64 @@ bool solvePointToPoint(const CellCloud& reference, const Moved& moved, const Mat
     w[i] = huberWeight(e, config);
   }
   *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
+  // J^T W J of the residual p' - q with p' = p + omega x p + v, J = [-[p]x, I]:
+  // [w (|p|^2 I - p p^T), w [p]x; -w [p]x, w I] summed over the pairs.
+  Eigen::Matrix3d rr = Eigen::Matrix3d::Zero(), rt = Eigen::Matrix3d::Zero();
+  double wsum = 0.0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    rr += w[i] * (p[i].squaredNorm() * Eigen::Matrix3d::Identity() - p[i] * p[i].transpose());
+    Eigen::Matrix3d px;
+    px << 0, -p[i].z(), p[i].y(), p[i].z(), 0, -p[i].x(), -p[i].y(), p[i].x(), 0;
+    rt += w[i] * px;
+    wsum += w[i];
+  }
+  normal_matrix->topLeftCorner<3, 3>() = rr;
+  normal_matrix->topRightCorner<3, 3>() = rt;
+  normal_matrix->bottomLeftCorner<3, 3>() = rt.transpose();
+  normal_matrix->bottomRightCorner<3, 3>() = wsum * Eigen::Matrix3d::Identity();
   *delta = alignPointToPoint(p, q, w);
   return delta->matrix().allFinite();
 }
 
 }  // namespace
 
+void AssociationGrid::build(const CellCloud& reference, int radius_cells) {
+  reference_ = &reference;
+  pad_ = radius_cells;
+  stride_ = reference.grid_w + 2 * radius_cells;
+  index_.assign(static_cast<std::size_t>(stride_) * (reference.grid_h + 2 * radius_cells), -1);
+  mean_.clear();
+  normal_.clear();
+  mean_.reserve(reference.cells.size());
+  normal_.reserve(reference.cells.size());
+  for (std::size_t i = 0; i < reference.cells.size(); ++i) {
+    const Cell& c = reference.cells[i];
+    index_[static_cast<std::size_t>(c.gy + pad_) * stride_ + c.gx + pad_] = static_cast<int>(i);
+    mean_.push_back(c.mean_C);
+    normal_.push_back(c.normal_C);
+  }
+}
+
 MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
                        const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_ref_cur,
                        const RegistrationConfig& config) {
   Moved moved;
   moveCells(current, T_ref_cur, &moved);
-  const RefGrid grid(reference, config.match.search_radius_cells);
+  const AssociationGrid grid(reference, config.match.search_radius_cells);
   return associate(reference, grid, current, moved, intrinsics, T_ref_cur.rotation(), config,
                    config.match.search_radius_cells);
 }
 
 RegistrationResult registerCells(const CellCloud& reference, const CellCloud& current,
                                  const PinholeIntrinsics& intrinsics,
+                                 const Eigen::Isometry3d& T_ref_cur_guess,
+                                 const RegistrationConfig& config) {
+  const AssociationGrid grid(reference, config.match.search_radius_cells);
+  return registerCells(reference, grid, current, intrinsics, T_ref_cur_guess, config);
+}
+
+RegistrationResult registerCells(const CellCloud& reference, const AssociationGrid& grid,
+                                 const CellCloud& current, const PinholeIntrinsics& intrinsics,
                                  const Eigen::Isometry3d& T_ref_cur_guess,
                                  const RegistrationConfig& config) {
   RegistrationResult result;
@@ -341,6 +366,9 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
   if (reference.cell_size != current.cell_size || reference.grid_w != current.grid_w ||
       reference.grid_h != current.grid_h)
     throw std::invalid_argument("registration: reference and current cell grids differ");
+  if (!grid.isFor(reference, config.match.search_radius_cells))
+    throw std::invalid_argument(
+        "registration: the association grid was built for another reference or search radius");
 
   Eigen::Isometry3d T = T_ref_cur_guess;
   Eigen::Isometry3d T_best = T;
@@ -348,7 +376,7 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
   bool error_rose = false;
   int since_best = 0;
   Moved moved;
-  const RefGrid grid(reference, config.match.search_radius_cells);
+  Matrix6d H = Matrix6d::Zero(), H_best = Matrix6d::Zero();
   FmCache fm_cache{std::vector<int>(current.cells.size(), -1),
                    std::vector<char>(current.cells.size(), 0)};
   for (int it = 0; it < config.max_iterations; ++it) {
@@ -378,12 +406,13 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
     Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
     bool ok;
     if (config.method == RegistrationMethod::kPointToPoint) {
-      ok = solvePointToPoint(reference, moved, m, config, &delta, &rms);
+      ok = solvePointToPoint(reference, moved, m, config, &delta, &rms, &H);
     } else {
       Vector6d xi;
-      ok = solvePointToPlane(reference, moved, m, config, &xi, &rms);
+      ok = solvePointToPlane(reference, moved, m, config, &xi, &rms, &H);
       if (ok) delta = expIncrement(xi);
     }
+    result.normal_matrix = H;
     if (!ok) {
       result.failure = "singular registration system";
       result.T_ref_cur = std::isfinite(best_rms) ? T_best : T_ref_cur_guess;
@@ -395,6 +424,7 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
     if (rms < best_rms) {
       best_rms = rms;
       T_best = T;
+      H_best = H;
       since_best = 0;
     } else if (++since_best >= config.patience) {
       error_rose = true;
@@ -412,6 +442,7 @@ RegistrationResult registerCells(const CellCloud& reference, const CellCloud& cu
     result.converged = true;
     result.T_ref_cur = T_best;
     result.error_rms_m = best_rms;
+    result.normal_matrix = H_best;
   } else {
     result.T_ref_cur = T;
   }

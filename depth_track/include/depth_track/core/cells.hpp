@@ -6,6 +6,7 @@
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/worker_pool.hpp"
 
 namespace depth_track {
 
@@ -41,6 +42,8 @@ struct CellCloud {
   std::vector<Cell> cells;
   std::vector<int> grid_index;
   ReductionStats stats;
+  double stamp_s = 0.0;  ///< time of the depth frame the cells come from, seconds
+  std::string frame_id;  ///< optical frame of the camera that saw them (cells are in it)
 
   /// Index into `cells` of grid cell (gx, gy), or -1 when pruned or outside the grid.
   int cellAt(int gx, int gy) const {
@@ -80,5 +83,9 @@ struct PcaConfig {
 /// `threads` > 1 splits rows of cells over TBB workers.
 CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
                         const PcaConfig& config, int threads = 1);
+/// As above, rows of cells split over the pool's workers (the same cells for any pool).
+/// Thread-safe.
+CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                        const PcaConfig& config, const WorkerPool& pool);
 
 }  // namespace depth_track

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/worker_pool.hpp"
 
 namespace depth_track {
 
@@ -76,5 +77,8 @@ inline double depthSigmaFromRawUnits(double raw_units, double depth_scale_m) {
 /// every problem of the config for this frame size. Thread-safe; `threads` > 1 splits rows over
 /// TBB workers (results are identical for any thread count).
 DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config, int threads = 1);
+/// As above, rows split over the pool's workers. Thread-safe.
+DepthImage applyPrefilter(const DepthImage& depth, const PrefilterConfig& config,
+                          const WorkerPool& pool);
 
 }  // namespace depth_track

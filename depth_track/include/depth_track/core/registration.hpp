@@ -9,6 +9,7 @@
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
+#include "depth_track/core/se3.hpp"
 
 namespace depth_track {
 
@@ -67,7 +68,43 @@ struct RegistrationResult {
   int fm_matches = 0;  ///< pairs that passed the FM gate (Cell Search), else = matches
   int duplicates_broken = 0;
   double error_rms_m = 0.0;  ///< residual RMS of the last iteration, metres
-  std::string failure;       ///< empty when the registration is usable
+  /// Normal-equation matrix J^T W J of the registration (Huber weights W, no noise scaling) at
+  /// the pairs of the iteration whose pose is returned (or of the last step taken before it):
+  /// point-to-plane residuals for P2L and Cell Search, point-to-point for P2P. The increment is
+  /// [omega (rad); v (m)] applied on the left, T_ref_cur <- exp(omega, v) T_ref_cur, in the
+  /// reference camera frame. sigma^2 H^-1 is the pose covariance for residual noise sigma; a
+  /// small eigenvalue is a direction the scene does not constrain. Zero when no step was solved.
+  Matrix6d normal_matrix = Matrix6d::Zero();
+  std::string failure;  ///< empty when the registration is usable
+};
+
+/// The reference cells as the association reads them: means and normals packed contiguously and
+/// the grid index padded by the search radius, so the search window needs no bounds checks.
+/// Depends only on the reference and the radius: a tracker that keeps its keyframe keeps the
+/// grid (CellOdometry), instead of rebuilding it on every registration. Holds the address of
+/// the reference it was built for, which must outlive it unchanged.
+class AssociationGrid {
+ public:
+  AssociationGrid() = default;
+  AssociationGrid(const CellCloud& reference, int radius_cells) { build(reference, radius_cells); }
+  /// (Re)builds for `reference` with a window of radius_cells (reusing the buffers).
+  void build(const CellCloud& reference, int radius_cells);
+  /// True when built for this very cloud (same address and cell count) and radius.
+  bool isFor(const CellCloud& reference, int radius_cells) const {
+    return reference_ == &reference && pad_ == radius_cells &&
+           mean_.size() == reference.cells.size();
+  }
+  int pad() const { return pad_; }
+  int stride() const { return stride_; }
+  const std::vector<int>& index() const { return index_; }  ///< -1 = no reference cell
+  const std::vector<Eigen::Vector3f>& mean() const { return mean_; }
+  const std::vector<Eigen::Vector3f>& normal() const { return normal_; }
+
+ private:
+  const CellCloud* reference_ = nullptr;
+  int pad_ = 0, stride_ = 0;
+  std::vector<int> index_;
+  std::vector<Eigen::Vector3f> mean_, normal_;
 };
 
 /// Förstner–Moonen distance between two cells' covariances (same frame): sum of log^2 of the
@@ -94,6 +131,14 @@ MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
 /// Thread-safe (no shared state).
 RegistrationResult registerCells(const CellCloud& reference, const CellCloud& current,
                                  const PinholeIntrinsics& intrinsics,
+                                 const Eigen::Isometry3d& T_ref_cur_guess,
+                                 const RegistrationConfig& config);
+/// The same with a grid built for `reference` and config.match.search_radius_cells, kept by
+/// the caller across registrations against one reference (identical results; throws
+/// std::invalid_argument when the grid was built for another cloud or radius). Thread-safe for
+/// concurrent calls sharing one const grid.
+RegistrationResult registerCells(const CellCloud& reference, const AssociationGrid& grid,
+                                 const CellCloud& current, const PinholeIntrinsics& intrinsics,
                                  const Eigen::Isometry3d& T_ref_cur_guess,
                                  const RegistrationConfig& config);
 

@@ -7,6 +7,7 @@
 namespace depth_track {
 
 using Vector6d = Eigen::Matrix<double, 6, 1>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 /// Exact SO(3) exponential of a rotation vector (radians). Thread-safe.
 inline Eigen::Matrix3d expSO3(const Eigen::Vector3d& omega) {

@@ -1,52 +1,40 @@
 #pragma once
-/// Frame-to-reference camera tracker: prediction, registration, failure detection, pose
-/// compounding (thesis eq. 2.48–2.52, written as T_W_C). ROS-free core; not thread-safe (one
-/// instance per camera stream).
+/// Depth-frame camera tracker: the prefilter, cell reduction and cell odometry stages composed
+/// over one worker pool, depth in, pose out. The ROS graph runs the same stages one per
+/// nodelet; this class is their composition for the offline tools and the tests. ROS-free
+/// core; not thread-safe (one instance per camera stream).
 #include <Eigen/Geometry>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "depth_track/core/camera.hpp"
+#include "depth_track/core/cell_odometry.hpp"
+#include "depth_track/core/cell_reducer.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
 #include "depth_track/core/prefilter.hpp"
+#include "depth_track/core/prefilter_stage.hpp"
 #include "depth_track/core/registration.hpp"
+#include "depth_track/core/worker_pool.hpp"
 
 namespace depth_track {
 
-struct TrackerConfig {
+/// The odometry's parameters (registration, keyframes, gates) plus the front end's. Derived
+/// rather than nested so every parameter keeps its one name (config.icp_frames,
+/// config.registration.method) in the parameter table, the YAML files and the tools.
+struct TrackerConfig : CellOdometryConfig {
   PrefilterConfig prefilter;
   PcaConfig pca;
-  RegistrationConfig registration;
-  /// Reference refresh: N >= 1 refreshes every N frames (the thesis's ICPFrames); 0 keeps a
-  /// keyframe until the camera has moved keyframe_dist_m or turned keyframe_angle_deg from it,
-  /// or fewer than keyframe_min_overlap of its cells still find a partner. Registering against
-  /// a keyframe instead of the previous frame stops per-registration errors adding up at rest
-  /// and at slow speed.
-  int icp_frames = 0;
-  double keyframe_dist_m = 0.10;
-  double keyframe_angle_deg = 5.0;
-  double keyframe_min_overlap = 0.5;
-  double max_error_rms_m = 0.02;  ///< larger residual = failed frame, metres
-  double max_jump_m = 0.15;       ///< larger correction of the prediction = failed frame, metres
-  double max_jump_deg = 15.0;     ///< ... degrees
-  bool constant_velocity = true;  ///< predict with the last motion (else: no motion)
-  int threads = 1;                ///< TBB workers for the reduction
+  int threads = 1;  ///< workers of the shared pool (prefilter and reduction)
 
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
-};
-
-/// Per-frame outcome.
-struct FrameStatus {
-  double stamp_s = 0.0;
-  bool tracked = false;  ///< false = pose is the prediction (frame flagged)
-  std::string failure;   ///< reason when !tracked
-  int cells = 0;
-  int candidates = 0, matches = 0, fm_matches = 0, duplicates_broken = 0, iterations = 0;
-  double error_rms_m = 0.0;
-  double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
-  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+  /// The reduction as the tracker runs it: inverse square roots only when Cell Search's
+  /// Förstner–Moonen gate reads them.
+  PcaConfig reducerConfig() const;
+  /// The odometry as the tracker runs it: the Förstner–Moonen regulariser is the reduction's.
+  CellOdometryConfig odometryConfig() const;
 };
 
 class Tracker {
@@ -57,31 +45,37 @@ class Tracker {
 
   /// Tracks one frame (metres, 0 = no return). A frame of the wrong size throws
   /// DepthInputError; an unusable frame (empty, too few matches) is flagged, never a NaN pose.
-  /// `prior_T_Wprev_Wcur` optionally replaces the constant-velocity guess with an external
+  /// `prior_T_Cprev_Ccur` optionally replaces the constant-velocity guess with an external
   /// motion prior expressed as the camera's motion T_Cprev_Ccur.
   FrameStatus track(const DepthImage& depth, double stamp_s,
                     const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt);
 
   /// Current camera pose in the world.
-  const Eigen::Isometry3d& pose() const { return T_W_C_; }
+  const Eigen::Isometry3d& pose() const { return odometry_.pose(); }
   /// Replaces the current pose (e.g. after a loop-closure correction); keeps the velocity and
   /// moves the reference frame's pose with it.
-  void correctPose(const Eigen::Isometry3d& T_W_C);
-  /// Cells of the last tracked frame (camera frame).
-  const CellCloud& lastCells() const { return last_cells_; }
+  void correctPose(const Eigen::Isometry3d& T_W_C) { odometry_.correctPose(T_W_C); }
+  /// Cells of the last frame (camera frame); empty before the first.
+  const CellCloud& lastCells() const;
   const TrackerConfig& config() const { return config_; }
   const PinholeIntrinsics& intrinsics() const { return intrinsics_; }
+
+  /// The stages (reset, relocalise and state live on the odometry).
+  const PrefilterStage& prefilter() const { return prefilter_; }
+  const CellReducer& reducer() const { return reducer_; }
+  CellOdometry& odometry() { return odometry_; }
+  const CellOdometry& odometry() const { return odometry_; }
+  /// ms per track() call, whole frame.
+  const RunningStats& timing() const { return timing_; }
 
  private:
   PinholeIntrinsics intrinsics_;
   TrackerConfig config_;
-  Eigen::Isometry3d T_W_C_;
-  Eigen::Isometry3d T_W_Cref_;               ///< pose of the reference frame
-  Eigen::Isometry3d velocity_T_Cprev_Ccur_;  ///< last frame-to-frame motion
-  CellCloud reference_;
-  CellCloud last_cells_;
-  bool have_reference_ = false;
-  int frames_since_refresh_ = 0;
+  std::shared_ptr<const WorkerPool> pool_;
+  PrefilterStage prefilter_;
+  CellReducer reducer_;
+  CellOdometry odometry_;
+  RunningStats timing_;
 };
 
 }  // namespace depth_track

@@ -1,0 +1,153 @@
+#pragma once
+/// Frame-to-keyframe odometry on cell clouds (thesis eq. 2.48–2.52, written as T_W_C): motion
+/// prediction, registration against the reference cells, failure gates, keyframe refresh and
+/// the tracking state, with a relocalisation hook for a reference from elsewhere (the map's ray
+/// cast). Owns the reference, the velocity and the association grid, which it keeps while the
+/// keyframe stays. ROS-free core; not thread-safe (one instance per camera stream).
+#include <Eigen/Geometry>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/cells.hpp"
+#include "depth_track/core/registration.hpp"
+#include "depth_track/core/running_stats.hpp"
+#include "depth_track/core/se3.hpp"
+
+namespace depth_track {
+
+/// Search of a relocalisation, wider than frame-to-frame tracking: the pose held while the
+/// camera was lost can be off by more than one frame's motion.
+struct RelocaliseConfig {
+  int search_radius_cells = 4;  ///< image-grid window of the first pass, cells
+  double initial_dist_m = 0.3;  ///< first-iteration pair gate, halved per iteration, metres
+  int max_iterations = 60;      ///< ICP iterations
+
+  std::vector<std::string> validate() const;
+};
+
+struct CellOdometryConfig {
+  RegistrationConfig registration;
+  /// Reference refresh: N >= 1 refreshes every N frames (the thesis's ICPFrames); 0 keeps a
+  /// keyframe until the camera has moved keyframe_dist_m or turned keyframe_angle_deg from it,
+  /// or fewer than keyframe_min_overlap of its cells still find a partner. Registering against
+  /// a keyframe instead of the previous frame stops per-registration errors adding up at rest
+  /// and at slow speed.
+  int icp_frames = 0;
+  double keyframe_dist_m = 0.10;
+  double keyframe_angle_deg = 5.0;
+  double keyframe_min_overlap = 0.5;
+  double max_error_rms_m = 0.02;  ///< larger residual = failed frame, metres
+  double max_jump_m = 0.15;       ///< larger correction of the prediction = failed frame, metres
+  double max_jump_deg = 15.0;     ///< ... degrees
+  bool constant_velocity = true;  ///< predict with the last motion (else: no motion)
+  RelocaliseConfig relocalise;
+
+  /// Every problem at once (empty = valid).
+  std::vector<std::string> validate() const;
+};
+
+/// TRACKING: the last frame registered. LOST: it did not (or no usable frame came yet); the pose
+/// is the prediction. RELOCALISING: lost, and a relocalisation was tried and rejected.
+enum class TrackingState { kTracking, kLost, kRelocalising };
+/// "TRACKING" | "LOST" | "RELOCALISING".
+std::string toString(TrackingState state);
+
+/// Per-frame outcome.
+struct FrameStatus {
+  double stamp_s = 0.0;
+  bool tracked = false;  ///< false = pose is the prediction (frame flagged)
+  TrackingState state = TrackingState::kLost;
+  std::string failure;  ///< reason when !tracked
+  int cells = 0;
+  int candidates = 0, matches = 0, fm_matches = 0, duplicates_broken = 0, iterations = 0;
+  double error_rms_m = 0.0;
+  double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
+  bool new_keyframe = false;  ///< the frame became the reference for the next ones
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+  /// Pose of the reference the frame was registered against (the frame of normal_matrix).
+  Eigen::Isometry3d T_W_Cref = Eigen::Isometry3d::Identity();
+  /// RegistrationResult::normal_matrix of this frame's registration (zero when none ran).
+  Matrix6d normal_matrix = Matrix6d::Zero();
+};
+
+/// Outcome of CellOdometry::relocalise.
+struct RelocalisationResult {
+  bool accepted = false;
+  std::string reason;  ///< why it was rejected, or "accepted: ..."
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();  ///< relocalised (or held) pose
+  RegistrationResult registration;
+  double ms = 0.0;
+};
+
+class CellOdometry {
+ public:
+  /// Throws std::invalid_argument listing every problem of the config or intrinsics, or for a
+  /// non-finite start pose.
+  CellOdometry(const PinholeIntrinsics& intrinsics, const CellOdometryConfig& config,
+               const Eigen::Isometry3d& T_W_C0 = Eigen::Isometry3d::Identity());
+
+  /// Tracks one frame's cells (from a CellReducer with these intrinsics). The first frame with
+  /// at least min_matches cells becomes the reference at the current pose. A frame that fails
+  /// (too few cells or matches, residual, implausible jump) keeps the predicted pose and is
+  /// flagged LOST, never a NaN pose. `prior_T_Cprev_Ccur` optionally replaces the
+  /// constant-velocity guess with an external motion prior (the camera's motion since the last
+  /// frame). Throws std::invalid_argument for a null cloud, a non-finite prior or cells of
+  /// another grid than the reference's (reset() after changing the cell size).
+  FrameStatus track(std::shared_ptr<const CellCloud> cells,
+                    const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt);
+
+  /// Registers the last frame's cells (lastCells()) onto `reference`, cells of the same grid
+  /// seen from T_W_Cref (e.g. the map ray-cast at the held pose and reduced like the frame),
+  /// from the guess T_W_C_guess, with the wider search of config.relocalise and the tracking
+  /// gates on matches and residual. Accepted: the pose becomes the result, the last frame the
+  /// keyframe, the velocity zero, the state TRACKING. Rejected: nothing changes but the state,
+  /// RELOCALISING while lost. Throws std::invalid_argument for a grid mismatch or a non-finite
+  /// pose.
+  RelocalisationResult relocalise(const CellCloud& reference, const Eigen::Isometry3d& T_W_Cref,
+                                  const Eigen::Isometry3d& T_W_C_guess);
+
+  /// Forgets reference, velocity and last cells and restarts at T_W_C (the next usable frame
+  /// becomes the reference). Throws std::invalid_argument for a non-finite pose.
+  void reset(const Eigen::Isometry3d& T_W_C);
+  /// reset() to the start pose given at construction.
+  void reset() { reset(T_W_C0_); }
+  /// Replaces the current pose (e.g. after a loop-closure correction); keeps the velocity and
+  /// moves the reference frame's pose with it.
+  void correctPose(const Eigen::Isometry3d& T_W_C);
+
+  /// Current camera pose in the world.
+  const Eigen::Isometry3d& pose() const { return T_W_C_; }
+  TrackingState state() const { return state_; }
+  /// The keyframe (null before the first usable frame) and its pose.
+  const std::shared_ptr<const CellCloud>& reference() const { return reference_; }
+  const Eigen::Isometry3d& referencePose() const { return T_W_Cref_; }
+  /// Cells of the last frame given to track() (null before the first).
+  const std::shared_ptr<const CellCloud>& lastCells() const { return last_cells_; }
+  /// Last frame-to-frame motion T_Cprev_Ccur (the constant-velocity prediction).
+  const Eigen::Isometry3d& velocity() const { return velocity_T_Cprev_Ccur_; }
+  const CellOdometryConfig& config() const { return config_; }
+  const PinholeIntrinsics& intrinsics() const { return intrinsics_; }
+  /// ms of registration per frame after the first (those with a reference).
+  const RunningStats& timing() const { return timing_; }
+
+ private:
+  void setReference(std::shared_ptr<const CellCloud> cells);
+
+  PinholeIntrinsics intrinsics_;
+  CellOdometryConfig config_;
+  Eigen::Isometry3d T_W_C0_;
+  Eigen::Isometry3d T_W_C_;
+  Eigen::Isometry3d T_W_Cref_;               ///< pose of the reference frame
+  Eigen::Isometry3d velocity_T_Cprev_Ccur_;  ///< last frame-to-frame motion
+  std::shared_ptr<const CellCloud> reference_;
+  std::shared_ptr<const CellCloud> last_cells_;
+  AssociationGrid grid_;  ///< built for *reference_ whenever it changes
+  TrackingState state_ = TrackingState::kLost;
+  int frames_since_refresh_ = 0;
+  RunningStats timing_;
+};
+
+}  // namespace depth_track

@@ -1,0 +1,265 @@
+#include "depth_track/core/cell_odometry.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace depth_track {
+
+namespace {
+constexpr double kRadToDeg = 180.0 / M_PI;
+}  // namespace
+
+std::vector<std::string> RelocaliseConfig::validate() const {
+  std::vector<std::string> p;
+  if (search_radius_cells < 0 || search_radius_cells > 16)
+    p.push_back("relocalise.search_radius_cells must lie in [0, 16]");
+  if (!(initial_dist_m >= 0.0)) p.push_back("relocalise.initial_dist_m must be >= 0 m");
+  if (max_iterations < 1 || max_iterations > 1000)
+    p.push_back("relocalise.max_iterations must lie in [1, 1000]");
+  return p;
+}
+
+std::vector<std::string> CellOdometryConfig::validate() const {
+  std::vector<std::string> p = registration.validate();
+  if (icp_frames < 0) p.push_back("icp_frames must be >= 0 (0 = adaptive keyframes)");
+  if (!(keyframe_dist_m > 0.0)) p.push_back("keyframe_dist_m must be > 0 m");
+  if (!(keyframe_angle_deg > 0.0)) p.push_back("keyframe_angle_deg must be > 0 deg");
+  if (!(keyframe_min_overlap >= 0.0 && keyframe_min_overlap <= 1.0))
+    p.push_back("keyframe_min_overlap must lie in [0, 1]");
+  if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
+  if (!(max_jump_m > 0.0)) p.push_back("max_jump_m must be > 0 m");
+  if (!(max_jump_deg > 0.0)) p.push_back("max_jump_deg must be > 0 deg");
+  for (const auto& s : relocalise.validate()) p.push_back(s);
+  return p;
+}
+
+std::string toString(TrackingState state) {
+  switch (state) {
+    case TrackingState::kTracking:
+      return "TRACKING";
+    case TrackingState::kLost:
+      return "LOST";
+    case TrackingState::kRelocalising:
+      return "RELOCALISING";
+  }
+  return "?";
+}
+
+CellOdometry::CellOdometry(const PinholeIntrinsics& intrinsics, const CellOdometryConfig& config,
+                           const Eigen::Isometry3d& T_W_C0)
+    : intrinsics_(intrinsics),
+      config_(config),
+      T_W_C0_(T_W_C0),
+      T_W_C_(T_W_C0),
+      T_W_Cref_(T_W_C0),
+      velocity_T_Cprev_Ccur_(Eigen::Isometry3d::Identity()) {
+  std::vector<std::string> problems = intrinsics.validate();
+  for (const auto& s : config.validate()) problems.push_back(s);
+  if (!problems.empty())
+    throw std::invalid_argument("cell odometry config: " + joinProblems(problems));
+  if (!T_W_C0.matrix().allFinite())
+    throw std::invalid_argument("cell odometry: initial pose is not finite");
+}
+
+void CellOdometry::setReference(std::shared_ptr<const CellCloud> cells) {
+  reference_ = std::move(cells);
+  T_W_Cref_ = T_W_C_;
+  frames_since_refresh_ = 0;
+  // Rebuilt on every change, never looked up by address: a later cloud can reuse a freed one's.
+  grid_.build(*reference_, config_.registration.match.search_radius_cells);
+}
+
+void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
+  if (!T_W_C.matrix().allFinite()) throw std::invalid_argument("reset: pose is not finite");
+  T_W_C_ = orthonormalized(T_W_C);
+  T_W_Cref_ = T_W_C_;
+  velocity_T_Cprev_Ccur_ = Eigen::Isometry3d::Identity();
+  reference_.reset();
+  last_cells_.reset();
+  grid_ = AssociationGrid();
+  state_ = TrackingState::kLost;
+  frames_since_refresh_ = 0;
+}
+
+void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
+  if (!T_W_C.matrix().allFinite()) throw std::invalid_argument("correctPose: pose is not finite");
+  // Move the reference with the camera so the next registration stays consistent.
+  const Eigen::Isometry3d T_C_Cref = T_W_C_.inverse() * T_W_Cref_;
+  T_W_C_ = orthonormalized(T_W_C);
+  T_W_Cref_ = orthonormalized(T_W_C_ * T_C_Cref);
+}
+
+FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
+                                const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!cells) throw std::invalid_argument("track: no cell cloud (null)");
+  FrameStatus st;
+  st.stamp_s = cells->stamp_s;
+  st.cells = static_cast<int>(cells->cells.size());
+  st.T_W_Cref = T_W_Cref_;
+
+  Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+  if (prior_T_Cprev_Ccur) {
+    if (!prior_T_Cprev_Ccur->matrix().allFinite())
+      throw std::invalid_argument("track: motion prior is not finite");
+    motion = *prior_T_Cprev_Ccur;
+  } else if (config_.constant_velocity) {
+    motion = velocity_T_Cprev_Ccur_;
+  }
+  const Eigen::Isometry3d T_W_pred = T_W_C_ * motion;
+
+  if (!reference_) {
+    if (st.cells < config_.registration.min_matches) {
+      std::ostringstream s;
+      s << "frame has " << st.cells << " usable cells, fewer than min_matches "
+        << config_.registration.min_matches << "; waiting for a usable first frame";
+      st.failure = s.str();
+      st.state = state_ = TrackingState::kLost;
+      st.T_W_C = T_W_C_;
+      st.ms_total = msSince(t0);
+      return st;
+    }
+    last_cells_ = cells;
+    setReference(std::move(cells));
+    st.tracked = true;
+    st.new_keyframe = true;
+    st.state = state_ = TrackingState::kTracking;
+    st.T_W_C = T_W_C_;
+    st.T_W_Cref = T_W_Cref_;
+    st.ms_total = msSince(t0);
+    return st;
+  }
+
+  const auto t1 = std::chrono::steady_clock::now();
+  const Eigen::Isometry3d guess = T_W_Cref_.inverse() * T_W_pred;
+  RegistrationResult reg;
+  if (st.cells < config_.registration.min_matches) {
+    std::ostringstream s;
+    s << "frame has only " << st.cells << " usable cells (min_matches "
+      << config_.registration.min_matches << ")";
+    reg.failure = s.str();
+  } else {
+    reg = registerCells(*reference_, grid_, *cells, intrinsics_, guess, config_.registration);
+  }
+  st.ms_register = msSince(t1);
+  timing_.add(st.ms_register);
+  st.candidates = reg.candidates;
+  st.matches = reg.matches;
+  st.fm_matches = reg.fm_matches;
+  st.duplicates_broken = reg.duplicates_broken;
+  st.iterations = reg.iterations;
+  st.error_rms_m = reg.error_rms_m;
+  st.normal_matrix = reg.normal_matrix;
+
+  std::string failure = reg.failure;
+  if (failure.empty() && !reg.T_ref_cur.matrix().allFinite())
+    failure = "registration diverged (non-finite)";
+  if (failure.empty() && reg.error_rms_m > config_.max_error_rms_m) {
+    std::ostringstream s;
+    s << "residual " << reg.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
+      << config_.max_error_rms_m * 1000.0 << " mm";
+    failure = s.str();
+  }
+  if (failure.empty()) {
+    const Eigen::Isometry3d jump = guess.inverse() * reg.T_ref_cur;
+    const double jump_m = jump.translation().norm();
+    const double jump_deg = rotationAngle(jump) * kRadToDeg;
+    if (jump_m > config_.max_jump_m || jump_deg > config_.max_jump_deg) {
+      std::ostringstream s;
+      s << "implausible jump from the prediction: " << jump_m * 1000.0 << " mm, " << jump_deg
+        << " deg";
+      failure = s.str();
+    }
+  }
+
+  const Eigen::Isometry3d T_W_prev = T_W_C_;
+  if (failure.empty()) {
+    T_W_C_ = orthonormalized(T_W_Cref_ * reg.T_ref_cur);
+    st.tracked = true;
+    state_ = TrackingState::kTracking;
+    velocity_T_Cprev_Ccur_ = T_W_prev.inverse() * T_W_C_;
+  } else {
+    // Keep the predicted pose and flag the frame; the reference stays as it was.
+    T_W_C_ = orthonormalized(T_W_pred);
+    st.failure = failure;
+    if (state_ != TrackingState::kRelocalising) state_ = TrackingState::kLost;
+  }
+  st.state = state_;
+  ++frames_since_refresh_;
+  bool refresh = false;
+  if (config_.icp_frames >= 1) {
+    refresh = frames_since_refresh_ >= config_.icp_frames;
+  } else if (st.tracked) {
+    const Eigen::Isometry3d from_key = T_W_Cref_.inverse() * T_W_C_;
+    const double overlap = reference_->cells.empty()
+                               ? 0.0
+                               : static_cast<double>(st.matches) / reference_->cells.size();
+    refresh = from_key.translation().norm() > config_.keyframe_dist_m ||
+              rotationAngle(from_key) * kRadToDeg > config_.keyframe_angle_deg ||
+              overlap < config_.keyframe_min_overlap;
+  }
+  last_cells_ = cells;
+  if (st.tracked && refresh) {
+    setReference(std::move(cells));
+    st.new_keyframe = true;
+  }
+  st.T_W_C = T_W_C_;
+  st.ms_total = msSince(t0);
+  return st;
+}
+
+RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
+                                              const Eigen::Isometry3d& T_W_Cref,
+                                              const Eigen::Isometry3d& T_W_C_guess) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!T_W_Cref.matrix().allFinite() || !T_W_C_guess.matrix().allFinite())
+    throw std::invalid_argument("relocalise: reference or guess pose is not finite");
+  RelocalisationResult r;
+  r.T_W_C = T_W_C_;
+  if (!last_cells_) {
+    r.reason = "no frame to relocalise yet";
+    r.ms = msSince(t0);
+    return r;
+  }
+  const CellCloud& cur = *last_cells_;
+  if (reference.cell_size != cur.cell_size || reference.grid_w != cur.grid_w ||
+      reference.grid_h != cur.grid_h)
+    throw std::invalid_argument("relocalise: the reference's cell grid differs from the frame's");
+  RegistrationConfig reg = config_.registration;
+  reg.match.search_radius_cells = config_.relocalise.search_radius_cells;
+  reg.match.initial_dist_m = config_.relocalise.initial_dist_m;
+  reg.max_iterations = config_.relocalise.max_iterations;
+  r.registration =
+      registerCells(reference, cur, intrinsics_, T_W_Cref.inverse() * T_W_C_guess, reg);
+  const RegistrationResult& res = r.registration;
+  std::ostringstream why;
+  if (!res.failure.empty()) {
+    why << "registration failed: " << res.failure;
+  } else if (!res.T_ref_cur.matrix().allFinite()) {
+    why << "registration diverged (non-finite)";
+  } else if (res.error_rms_m > config_.max_error_rms_m) {
+    why << "residual " << res.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
+        << config_.max_error_rms_m * 1000.0 << " mm";
+  }
+  if (!why.str().empty()) {
+    r.reason = why.str();
+    if (state_ != TrackingState::kTracking) state_ = TrackingState::kRelocalising;
+    r.ms = msSince(t0);
+    return r;
+  }
+  T_W_C_ = orthonormalized(T_W_Cref * res.T_ref_cur);
+  velocity_T_Cprev_Ccur_ = Eigen::Isometry3d::Identity();
+  setReference(last_cells_);
+  state_ = TrackingState::kTracking;
+  r.accepted = true;
+  r.T_W_C = T_W_C_;
+  why << "accepted: " << res.matches << " pairs, residual " << res.error_rms_m * 1000.0 << " mm, "
+      << res.iterations << " iterations";
+  r.reason = why.str();
+  r.ms = msSince(t0);
+  return r;
+}
+
+}  // namespace depth_track
