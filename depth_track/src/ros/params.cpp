@@ -1,6 +1,7 @@
 #include "depth_track/ros/params.hpp"
 
 #include <XmlRpcValue.h>
+#include <ros/console.h>
 #include <ros/param.h>
 
 #include <cstdio>
@@ -62,6 +63,9 @@ std::vector<NodeParamSpec> makeParams() {
                   10.0));
   p.push_back(num("ingest", "input_timeout", "s",
                   "warn (naming the topics) when no frame came for this long", 5.0, 0.1, 3600.0));
+  p.push_back(text("ingest", "image_transport",
+                   "transport of image_rect: raw | compressedDepth (image_transport plugins)",
+                   "raw"));
   p.push_back(integer("ingest", "threads", "", "workers of the prefilter", 1, 1, 64));
   p.push_back(integer("ingest", "replay_queue", "frames",
                       "replay: frames held while the graph is behind (then the oldest is dropped "
@@ -84,6 +88,12 @@ std::vector<NodeParamSpec> makeParams() {
   p.push_back(num("registration", "static_tf_timeout", "s",
                   "warn about a missing base_frame -> camera transform every this long", 2.0, 0.1,
                   3600.0));
+  p.push_back(text("registration", "camera_mount",
+                   "'x y z qx qy qz qw' of camera_frame in base_frame (m), published on /tf_static "
+                   "by this nodelet, when nothing else does; empty = from tf",
+                   ""));
+  p.push_back(text("registration", "camera_frame", "the optical frame camera_mount places",
+                   "camera_depth_optical_frame"));
   p.push_back(flag("registration", "publish_tf", "publish tf odom_frame -> base_frame", true));
   p.push_back(integer("registration", "path_length", "poses",
                       "poses kept in the published path (oldest dropped)", 2000, 1, 1000000));
@@ -278,6 +288,8 @@ void ParamReader::finish() const {
   if (problems_.empty()) return;
   std::string msg = node_ + ": invalid parameters (documented in config/tracking.yaml): ";
   for (std::size_t i = 0; i < problems_.size(); ++i) msg += (i ? "; " : "") + problems_[i];
+  // Logged here too: a nodelet manager reports a failed onInit without the exception's text.
+  ROS_FATAL("%s", msg.c_str());
   throw ParamError(msg);
 }
 

@@ -1,0 +1,273 @@
+// depth_track/fusion: fuses each tracked full-resolution frame (depth/image + its `status`, paired
+// by stamp) into the graph's voxel map at T_map_camera = (map -> odom of that frame, decided by
+// the loop closure) * T_odom_camera. Lost and rejected frames are not fused (they would poison
+// the map). Publishes, rate-limited, `map/voxels` (PointCloud2 of occupied voxel centres, map
+// frame) and `map/markers` (MarkerArray, one CUBE_LIST per 0.5 m tile, only the tiles that
+// changed: unlike a full rebuild per insert, the cost follows what changed). Services:
+// ~save_map (OctoMap .bt), ~clear_map.
+#include <image_transport/image_transport.h>
+#include <nodelet/nodelet.h>
+#include <rig_msgs/SaveFile.h>
+#include <rig_msgs/TrackingStatus.h>
+#include <ros/ros.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <std_srvs/Trigger.h>
+#include <visualization_msgs/MarkerArray.h>
+#include <pluginlib/class_list_macros.hpp>
+
+#include <unordered_map>
+
+#include "depth_track/core/map/mapper_params.hpp"
+#include "depth_track/ros/conversions.hpp"
+#include "depth_track/ros/params.hpp"
+#include "graph_common.hpp"
+
+namespace depth_track {
+namespace graph {
+
+class FusionNodelet : public nodelet::Nodelet {
+ public:
+  ~FusionNodelet() override {
+    if (queue_) queue_->stop();
+  }
+
+ private:
+  struct Frame {
+    sensor_msgs::ImageConstPtr image;
+    sensor_msgs::CameraInfoConstPtr info;
+    rig_msgs::TrackingStatusConstPtr status;
+  };
+  using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;
+
+  void onInit() override {
+    ros::NodeHandle& nh = getNodeHandle();
+    ros::NodeHandle& pnh = getPrivateNodeHandle();
+    rosparams::ParamReader r(pnh, "fusion");
+    mode_ = parseMode(r.getString("mode"));
+    map_frame_ = r.getString("map_frame");
+    odom_frame_ = r.getString("odom_frame");
+    publish_period_s_ = r.getDouble("publish_period");
+    const int sync_queue = r.getInt("sync_queue");
+    map_path_ = r.getString("map_path");
+    PinholeIntrinsics nominal{640, 480, 500, 500, 319.5, 239.5};
+    config_ =
+        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
+                              [nominal](const MapperConfig& c) { return c.validate(nominal); });
+    r.finish();
+    ctx_ = graphContext(nh.getNamespace());
+    pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
+    voxels_pub_ = nh.advertise<sensor_msgs::PointCloud2>("map/voxels", 1, true);
+    markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>("map/markers", 10, true);
+    save_srv_ = pnh.advertiseService("save_map", &FusionNodelet::onSave, this);
+    clear_srv_ = pnh.advertiseService("clear_map", &FusionNodelet::onClear, this);
+    queue_ =
+        std::make_unique<FrameQueue<Frame>>(mode_, 100000, [this](const Frame& f) { process(f); });
+    image_transport::ImageTransport it(nh);
+    depth_sub_ = it.subscribeCamera("depth/image", 50, &FusionNodelet::onDepth, this);
+    status_sub_ = nh.subscribe("status", 100, &FusionNodelet::onStatus, this);
+    publish_timer_ = nh.createWallTimer(ros::WallDuration(std::max(publish_period_s_, 0.05)),
+                                        [this](const ros::WallTimerEvent&) { publishMap(); });
+    NODELET_INFO("fusion: %s, voxel %.4f m, region %s, carving %s",
+                 mode_ == Mode::kReplay ? "replay" : "live", config_.map.voxel_size_m,
+                 mapRegionText(config_.map).c_str(),
+                 config_.map.model == UpdateModel::kProbabilistic ? "on" : "off");
+  }
+
+  void onDepth(const sensor_msgs::ImageConstPtr& image,
+               const sensor_msgs::CameraInfoConstPtr& info) {
+    std::lock_guard<std::mutex> lock(pair_mutex_);
+    if (auto p = pairs_->addA(image->header.stamp, {image, info}))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+  void onStatus(const rig_msgs::TrackingStatusConstPtr& s) {
+    if (s->input_rejected) return;  // no depth frame of this stamp goes on
+    std::lock_guard<std::mutex> lock(pair_mutex_);
+    if (auto p = pairs_->addB(s->header.stamp, s))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+
+  void process(const Frame& f) {
+    const double stamp = f.image->header.stamp.toSec();
+    try {
+      if (stamp < last_stamp_) {  // time jumped back: the registration resets the map too
+        map_changed_ = true;
+        tiles_.clear();
+      }
+      last_stamp_ = stamp;
+      const auto X =
+          ctx_->map.correctionFor(stamp, mode_ == Mode::kReplay && config_.loop.enabled, 30.0);
+      if (!f.status->tracked) {
+        ctx_->map.fused(stamp);
+        return;
+      }
+      if (!X) throw std::runtime_error("no map -> odom decision for this frame within 30 s");
+      const Eigen::Isometry3d T_map_C = *X * conv::fromPoseMsg(f.status->camera_pose);
+      const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
+      const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
+      ctx_->map.ensureMap(K, config_, T_map_C);
+      ctx_->map.write([&](VoxelMap* map) {
+        map->fuse(depth, K, T_map_C);
+        if (config_.flush_every > 0 && map->framesFused() % config_.flush_every == 0) map->flush();
+        return 0;
+      });
+      ++fused_;
+      map_changed_ = true;
+    } catch (const std::exception& e) {
+      NODELET_ERROR_THROTTLE(1.0, "fusion: frame at %.3f not fused: %s", stamp, e.what());
+    }
+    ctx_->map.fused(stamp);
+  }
+
+  /// Occupied voxels as a cloud and as per-tile cube lists; only changed tiles are re-sent.
+  void publishMap() {
+    if (!map_changed_.exchange(false)) return;
+    const bool want_cloud = voxels_pub_.getNumSubscribers() > 0;
+    const bool want_markers = markers_pub_.getNumSubscribers() > 0;
+    if (!want_cloud && !want_markers) {
+      map_changed_ = true;  // publish once someone subscribes
+      return;
+    }
+    std::vector<Eigen::Vector3f> centres;
+    double voxel = config_.map.voxel_size_m;
+    ctx_->map.read([&](const VoxelMap* map) {
+      if (!map) return 0;
+      voxel = map->config().voxel_size_m;
+      map->forEachOccupied(
+          [&](const VoxelKey& k) { centres.push_back(map->centerOf(k).cast<float>()); });
+      return 0;
+    });
+    ros::Time now = ros::Time::now();
+    if (want_cloud) {
+      sensor_msgs::PointCloud2 c;
+      c.header.stamp = now;
+      c.header.frame_id = map_frame_;
+      c.height = 1;
+      c.width = centres.size();
+      for (int i = 0; i < 3; ++i) {
+        sensor_msgs::PointField pf;
+        pf.name = std::string(1, "xyz"[i]);
+        pf.offset = 4 * i;
+        pf.datatype = sensor_msgs::PointField::FLOAT32;
+        pf.count = 1;
+        c.fields.push_back(pf);
+      }
+      c.point_step = 12;
+      c.row_step = 12 * c.width;
+      c.is_dense = true;
+      c.data.resize(c.row_step);
+      std::memcpy(c.data.data(), centres.data(), c.data.size());
+      voxels_pub_.publish(c);
+    }
+    if (want_markers) {
+      const double tile = 0.5;
+      std::unordered_map<std::int64_t, std::vector<Eigen::Vector3f>> by_tile;
+      for (const auto& p : centres) {
+        const std::int64_t tx = static_cast<std::int64_t>(std::floor(p.x() / tile)) & 0xFFFFF;
+        const std::int64_t ty = static_cast<std::int64_t>(std::floor(p.y() / tile)) & 0xFFFFF;
+        const std::int64_t tz = static_cast<std::int64_t>(std::floor(p.z() / tile)) & 0xFFFFF;
+        by_tile[(tx << 40) | (ty << 20) | tz].push_back(p);
+      }
+      visualization_msgs::MarkerArray arr;
+      std::unordered_map<std::int64_t, std::pair<std::size_t, int>> now_tiles;
+      for (auto& [key, pts] : by_tile) {
+        const int id = tileId(key);
+        now_tiles[key] = {pts.size(), id};
+        auto old = tiles_.find(key);
+        if (old != tiles_.end() && old->second.first == pts.size()) continue;  // unchanged
+        visualization_msgs::Marker m;
+        m.header.stamp = now;
+        m.header.frame_id = map_frame_;
+        m.ns = "occupied_voxels";
+        m.id = id;
+        m.type = visualization_msgs::Marker::CUBE_LIST;
+        m.action = visualization_msgs::Marker::ADD;
+        m.pose.orientation.w = 1.0;
+        m.scale.x = m.scale.y = m.scale.z = voxel;
+        m.points.reserve(pts.size());
+        m.colors.reserve(pts.size());
+        for (const auto& p : pts) {
+          geometry_msgs::Point q;
+          q.x = p.x(), q.y = p.y(), q.z = p.z();
+          m.points.push_back(q);
+          // Colour by height (octomap_server's habit), cycling every 2 m.
+          const double h = std::fmod(std::fmod(p.z(), 2.0) + 2.0, 2.0) / 2.0;
+          std_msgs::ColorRGBA col;
+          col.r = static_cast<float>(std::clamp(std::abs(h * 6 - 3) - 1, 0.0, 1.0));
+          col.g = static_cast<float>(std::clamp(2 - std::abs(h * 6 - 2), 0.0, 1.0));
+          col.b = static_cast<float>(std::clamp(2 - std::abs(h * 6 - 4), 0.0, 1.0));
+          col.a = 1.0f;
+          m.colors.push_back(col);
+        }
+        arr.markers.push_back(std::move(m));
+      }
+      for (const auto& [key, v] : tiles_)
+        if (!now_tiles.count(key)) {
+          visualization_msgs::Marker m;
+          m.header.frame_id = map_frame_;
+          m.ns = "occupied_voxels";
+          m.id = v.second;
+          m.action = visualization_msgs::Marker::DELETE;
+          arr.markers.push_back(m);
+        }
+      tiles_ = std::move(now_tiles);
+      if (!arr.markers.empty()) markers_pub_.publish(arr);
+    }
+  }
+  int tileId(std::int64_t key) {
+    auto it = tile_ids_.find(key);
+    if (it != tile_ids_.end()) return it->second;
+    const int id = static_cast<int>(tile_ids_.size());
+    tile_ids_[key] = id;
+    return id;
+  }
+
+  bool onSave(rig_msgs::SaveFile::Request& req, rig_msgs::SaveFile::Response& res) {
+    res.path = req.path.empty() ? map_path_ : req.path;
+    try {
+      const std::size_t n = ctx_->map.write([&](VoxelMap* map) -> std::size_t {
+        if (!map) throw std::runtime_error("the map is empty (no frame fused yet)");
+        map->save(res.path);
+        return map->occupiedCount();
+      });
+      res.success = true;
+      res.message = "map of " + std::to_string(n) + " occupied voxels -> " + res.path;
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = std::string("save_map failed: ") + e.what();
+    }
+    NODELET_INFO("fusion: %s", res.message.c_str());
+    return true;
+  }
+  bool onClear(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    ctx_->map.clear();
+    map_changed_ = true;
+    res.success = true;
+    res.message = "map cleared; the next tracked frame starts a new one";
+    NODELET_INFO("fusion: %s", res.message.c_str());
+    return true;
+  }
+
+  Mode mode_ = Mode::kLive;
+  std::string map_frame_, odom_frame_, map_path_;
+  double publish_period_s_ = 1.0;
+  MapperConfig config_;
+  std::shared_ptr<GraphContext> ctx_;
+  std::mutex pair_mutex_;
+  std::unique_ptr<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>> pairs_;
+  double last_stamp_ = -1.0;
+  std::uint64_t fused_ = 0;
+  std::atomic<bool> map_changed_{false};
+  std::unordered_map<std::int64_t, std::pair<std::size_t, int>> tiles_;  // key -> (voxels, id)
+  std::unordered_map<std::int64_t, int> tile_ids_;
+  image_transport::CameraSubscriber depth_sub_;
+  ros::Subscriber status_sub_;
+  ros::Publisher voxels_pub_, markers_pub_;
+  ros::ServiceServer save_srv_, clear_srv_;
+  ros::WallTimer publish_timer_;
+  std::unique_ptr<FrameQueue<Frame>> queue_;
+};
+
+}  // namespace graph
+}  // namespace depth_track
+
+PLUGINLIB_EXPORT_CLASS(depth_track::graph::FusionNodelet, nodelet::Nodelet)

@@ -1,0 +1,357 @@
+#pragma once
+// What the tracking graph's nodelets share, ROS side only: the frame queue that gives replay its
+// order and live mode its freshness, the clock/stamp guard, the input watchdog, and the
+// in-process registry through which nodelets of one manager share the map and their counters.
+#include <ros/ros.h>
+
+#include <Eigen/Geometry>
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <shared_mutex>
+#include <string>
+#include <thread>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "depth_track/core/camera.hpp"
+#include "depth_track/core/map/mapper.hpp"
+#include "depth_track/core/map/voxel_map.hpp"
+
+namespace depth_track {
+namespace graph {
+
+enum class Mode { kLive, kReplay };
+inline Mode parseMode(const std::string& s) { return s == "replay" ? Mode::kReplay : Mode::kLive; }
+
+/// Hands messages from a subscriber callback to one worker thread. Replay: every item, in
+/// order (up to `capacity`; beyond it the oldest is dropped and counted, which a replay at a
+/// sustainable rate never reaches). Live: only the freshest item waits; an item replaced before
+/// the worker took it is counted as skipped. The worker runs `process`, which must not throw
+/// (the nodelets catch everything inside it).
+template <class T>
+class FrameQueue {
+ public:
+  FrameQueue(Mode mode, std::size_t capacity, std::function<void(const T&)> process)
+      : mode_(mode), capacity_(capacity), process_(std::move(process)) {
+    worker_ = std::thread([this] { run(); });
+  }
+  ~FrameQueue() { stop(); }
+  FrameQueue(const FrameQueue&) = delete;
+  FrameQueue& operator=(const FrameQueue&) = delete;
+
+  void push(const T& item) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (mode_ == Mode::kLive) {
+        if (!items_.empty()) {
+          items_.clear();
+          ++skipped_;
+        }
+      } else if (items_.size() >= capacity_) {
+        items_.pop_front();
+        ++overflowed_;
+      }
+      items_.push_back(item);
+    }
+    cv_.notify_one();
+  }
+  /// Drops everything waiting (a reset); the item being processed finishes.
+  void clear() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    items_.clear();
+  }
+  /// Blocks until nothing waits and the worker is idle (tests, shutdown).
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (stopping_) return;
+      stopping_ = true;
+    }
+    cv_.notify_all();
+    if (worker_.joinable()) worker_.join();
+  }
+  std::uint64_t skipped() const { return skipped_; }
+  std::uint64_t overflowed() const { return overflowed_; }
+  std::size_t waiting() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return items_.size();
+  }
+
+ private:
+  void run() {
+    for (;;) {
+      T item;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        cv_.wait(lock, [this] { return stopping_ || !items_.empty(); });
+        if (stopping_) return;
+        item = items_.front();
+        items_.pop_front();
+      }
+      process_(item);
+    }
+  }
+
+  Mode mode_;
+  std::size_t capacity_;
+  std::function<void(const T&)> process_;
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<T> items_;
+  bool stopping_ = false;
+  std::atomic<std::uint64_t> skipped_{0}, overflowed_{0};
+  std::thread worker_;
+};
+
+/// Decides what a frame's stamp means: the clock jumped back (a looped bag: reset the graph),
+/// the stamp does not increase (reject the frame), or it is the next frame.
+class StampGuard {
+ public:
+  enum class Verdict { kNext, kReset, kReject };
+  Verdict check(const ros::Time& stamp) {
+    const ros::Time now = ros::Time::now();
+    Verdict v = Verdict::kNext;
+    if (have_ && now + ros::Duration(0.5) < last_now_) {
+      v = Verdict::kReset;
+    } else if (have_ && stamp <= last_stamp_) {
+      // A bag restarted without --clock shows only as a stamp far in the past.
+      v = stamp + ros::Duration(1.0) < last_stamp_ && now < last_now_ + ros::Duration(2.0) &&
+                  ros::Time::isSimTime()
+              ? Verdict::kReset
+              : Verdict::kReject;
+      if (v == Verdict::kReject) return v;
+    }
+    have_ = true;
+    last_stamp_ = stamp;
+    last_now_ = now;
+    return v;
+  }
+  void clear() { have_ = false; }
+  const ros::Time& lastStamp() const { return last_stamp_; }
+
+ private:
+  bool have_ = false;
+  ros::Time last_stamp_, last_now_;
+};
+
+/// Warns once per `timeout_s` of wall time without input, naming the resolved topics.
+class InputWatchdog {
+ public:
+  void start(ros::NodeHandle& nh, const std::string& who, std::vector<std::string> topics,
+             double timeout_s) {
+    who_ = who;
+    topics_ = std::move(topics);
+    timeout_s_ = timeout_s;
+    last_ = ros::WallTime::now();
+    timer_ =
+        nh.createWallTimer(ros::WallDuration(timeout_s / 2), [this](const ros::WallTimerEvent&) {
+          const double idle = (ros::WallTime::now() - last_).toSec();
+          if (idle < timeout_s_) return;
+          std::string list;
+          for (const auto& t : topics_) list += (list.empty() ? "" : ", ") + t;
+          ROS_WARN("%s: no input for %.0f s on %s (is the camera / bag running and remapped?)",
+                   who_.c_str(), idle, list.c_str());
+          last_ = ros::WallTime::now();
+        });
+  }
+  void kick() { last_ = ros::WallTime::now(); }
+
+ private:
+  std::string who_;
+  std::vector<std::string> topics_;
+  double timeout_s_ = 5.0;
+  ros::WallTime last_;
+  ros::WallTimer timer_;
+};
+
+/// The map of one graph, shared by the fusion nodelet (the writer), the loop-closure nodelet and
+/// the registration's relocalisation (readers) when they run in one nodelet manager; plus the
+/// map -> odom correction the loop closure decides per frame. In replay mode the two mapping
+/// nodelets hand frames to each other through it in the offline order: the loop closure of frame
+/// k reads the map fused up to frame k-1, and frame k is fused at the pose it decided.
+class MapSession {
+ public:
+  /// Builds the map on the first frame (its intrinsics and start pose place the region).
+  void ensureMap(const PinholeIntrinsics& K, const MapperConfig& config,
+                 const Eigen::Isometry3d& T_map_C0) {
+    std::unique_lock<std::shared_mutex> lock(map_mutex_);
+    if (map_) return;
+    intrinsics_ = K;
+    config_ = config;
+    map_ = std::make_unique<VoxelMap>(config.map);
+    map_->placeRegion(T_map_C0);
+  }
+  /// Exclusive access for the writer: f(map).
+  template <class F>
+  auto write(F&& f) {
+    std::unique_lock<std::shared_mutex> lock(map_mutex_);
+    return f(map_.get());
+  }
+  /// Shared access for readers: f(map or nullptr before the first frame).
+  template <class F>
+  auto read(F&& f) const {
+    std::shared_lock<std::shared_mutex> lock(map_mutex_);
+    return f(static_cast<const VoxelMap*>(map_.get()));
+  }
+  PinholeIntrinsics intrinsics() const {
+    std::shared_lock<std::shared_mutex> lock(map_mutex_);
+    return intrinsics_;
+  }
+  /// Forgets the map and every correction (reset, clear_map, a jump back in time).
+  void clear() {
+    {
+      std::unique_lock<std::shared_mutex> lock(map_mutex_);
+      map_.reset();
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    decisions_.clear();
+    T_map_odom_ = Eigen::Isometry3d::Identity();
+    fused_upto_ = -1.0;
+    ++generation_;
+    cv_.notify_all();
+  }
+
+  // ---- corrections (loop closure -> everyone) ----
+  void attachLoopClosure() { loop_attached_ = true; }
+  bool loopAttached() const { return loop_attached_; }
+  /// The loop closure's decision for the frame at stamp_s: map -> odom from then on.
+  void decide(double stamp_s, const Eigen::Isometry3d& T_map_odom) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    decisions_[stamp_s] = T_map_odom;
+    while (decisions_.size() > 4096) decisions_.erase(decisions_.begin());
+    T_map_odom_ = T_map_odom;
+    cv_.notify_all();
+  }
+  /// map -> odom for the frame at stamp_s; in replay waits (up to timeout_s) until the loop
+  /// closure has decided that frame. nullopt on timeout or a reset meanwhile.
+  std::optional<Eigen::Isometry3d> correctionFor(double stamp_s, bool wait, double timeout_s) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    const auto gen = generation_;
+    auto ready = [&] {
+      return generation_ != gen || (!decisions_.empty() && decisions_.rbegin()->first >= stamp_s);
+    };
+    if (wait && loop_attached_ &&
+        !cv_.wait_for(lock, std::chrono::duration<double>(timeout_s), ready))
+      return std::nullopt;
+    if (generation_ != gen) return std::nullopt;
+    auto it = decisions_.upper_bound(stamp_s);
+    if (it == decisions_.begin()) return T_map_odom_;
+    return std::prev(it)->second;
+  }
+  Eigen::Isometry3d latestCorrection() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return T_map_odom_;
+  }
+
+  // ---- fusion progress (fusion -> loop closure) ----
+  void fused(double stamp_s) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    fused_upto_ = std::max(fused_upto_, stamp_s);
+    cv_.notify_all();
+  }
+  /// Waits until every frame up to stamp_s was fused (or skipped); false on timeout.
+  bool waitFused(double stamp_s, double timeout_s) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    const auto gen = generation_;
+    return cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
+                        [&] { return generation_ != gen || fused_upto_ >= stamp_s; });
+  }
+
+ private:
+  mutable std::shared_mutex map_mutex_;
+  std::unique_ptr<VoxelMap> map_;
+  PinholeIntrinsics intrinsics_;
+  MapperConfig config_;
+
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::map<double, Eigen::Isometry3d> decisions_;
+  Eigen::Isometry3d T_map_odom_ = Eigen::Isometry3d::Identity();
+  double fused_upto_ = -1.0;
+  std::uint64_t generation_ = 0;
+  std::atomic<bool> loop_attached_{false};
+};
+
+/// Per-graph shared state, keyed by the nodelets' namespace (one graph per namespace).
+struct GraphContext {
+  MapSession map;
+  /// Live mode: frames each stage skipped because it was still busy with an older one.
+  std::atomic<std::uint64_t> skipped_ingest{0}, skipped_reduce{0}, skipped_registration{0};
+};
+
+/// Pairs messages of two streams that carry the same stamp (a depth frame and its camera_info,
+/// a depth frame and its tracking status), whichever comes first; at most `capacity` unpaired
+/// ones of each stream wait (the oldest goes first). Not thread-safe (one subscriber queue).
+template <class A, class B>
+class StampPairer {
+ public:
+  explicit StampPairer(std::size_t capacity) : capacity_(capacity) {}
+  /// Adds an A; returns its partner when one is waiting.
+  std::optional<std::pair<A, B>> addA(const ros::Time& t, const A& a) {
+    return add(t, a, as_, bs_, [](const A& x, const B& y) { return std::make_pair(x, y); });
+  }
+  std::optional<std::pair<A, B>> addB(const ros::Time& t, const B& b) {
+    return add(t, b, bs_, as_, [](const B& y, const A& x) { return std::make_pair(x, y); });
+  }
+  /// As which a waits longest and never found its partner (dropped on overflow).
+  std::uint64_t unpairedA() const { return dropped_a_; }
+  /// Removes and returns the waiting As older than t: once a pair of stamp t formed, streams
+  /// that arrive in order will not bring their partners any more.
+  std::vector<A> takeOlderA(const ros::Time& t) {
+    std::vector<A> out;
+    while (!as_.empty() && as_.front().first < t) {
+      out.push_back(as_.front().second);
+      as_.pop_front();
+    }
+    return out;
+  }
+  void clear() {
+    as_.clear();
+    bs_.clear();
+  }
+
+ private:
+  template <class X, class Y, class Make>
+  std::optional<std::pair<A, B>> add(const ros::Time& t, const X& x,
+                                     std::deque<std::pair<ros::Time, X>>& mine,
+                                     std::deque<std::pair<ros::Time, Y>>& theirs, Make make) {
+    for (auto it = theirs.begin(); it != theirs.end(); ++it)
+      if (it->first == t) {
+        auto out = make(x, it->second);
+        theirs.erase(it);
+        return out;
+      }
+    mine.emplace_back(t, x);
+    if (mine.size() > capacity_) {
+      mine.pop_front();
+      if constexpr (std::is_same_v<X, A>) ++dropped_a_;
+    }
+    return std::nullopt;
+  }
+  std::size_t capacity_;
+  std::deque<std::pair<ros::Time, A>> as_;
+  std::deque<std::pair<ros::Time, B>> bs_;
+  std::uint64_t dropped_a_ = 0;
+};
+
+inline std::shared_ptr<GraphContext> graphContext(const std::string& ns) {
+  static std::mutex mutex;
+  static std::map<std::string, std::weak_ptr<GraphContext>> registry;
+  std::lock_guard<std::mutex> lock(mutex);
+  auto ctx = registry[ns].lock();
+  if (!ctx) {
+    ctx = std::make_shared<GraphContext>();
+    registry[ns] = ctx;
+  }
+  return ctx;
+}
+
+}  // namespace graph
+}  // namespace depth_track

@@ -1,0 +1,190 @@
+// depth_track/loop_closure: every cl_step-th tracked frame (depth/image + its `status`), registers
+// the frame against the virtual depth ray-cast from the graph's map at the predicted pose (the
+// core's closeLoop and its gates) and, when accepted, updates the correction map -> odom, which
+// goes out on tf at a steady rate (~tf_rate), not only when it changes. Publishes the gate's
+// decision and reason on `loop_closure/status` and, while someone watches, the virtual depth at
+// the corrected pose on `loop_closure/virtual_depth`. Needs the fusion nodelet's map (same
+// manager); with loop_closure off it publishes the identity correction.
+#include <geometry_msgs/TransformStamped.h>
+#include <image_transport/image_transport.h>
+#include <nodelet/nodelet.h>
+#include <rig_msgs/LoopClosureStatus.h>
+#include <rig_msgs/TrackingStatus.h>
+#include <ros/ros.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <pluginlib/class_list_macros.hpp>
+
+#include "depth_track/core/map/loop_closure.hpp"
+#include "depth_track/core/map/mapper_params.hpp"
+#include "depth_track/ros/conversions.hpp"
+#include "depth_track/ros/params.hpp"
+#include "graph_common.hpp"
+
+namespace depth_track {
+namespace graph {
+
+class LoopClosureNodelet : public nodelet::Nodelet {
+ public:
+  ~LoopClosureNodelet() override {
+    if (queue_) queue_->stop();
+  }
+
+ private:
+  struct Frame {
+    sensor_msgs::ImageConstPtr image;
+    sensor_msgs::CameraInfoConstPtr info;
+    rig_msgs::TrackingStatusConstPtr status;
+  };
+  using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;
+
+  void onInit() override {
+    ros::NodeHandle& nh = getNodeHandle();
+    ros::NodeHandle& pnh = getPrivateNodeHandle();
+    rosparams::ParamReader r(pnh, "loop_closure");
+    mode_ = parseMode(r.getString("mode"));
+    map_frame_ = r.getString("map_frame");
+    odom_frame_ = r.getString("odom_frame");
+    const double tf_rate = r.getDouble("tf_rate");
+    const int sync_queue = r.getInt("sync_queue");
+    wait_timeout_s_ = r.getDouble("wait_timeout");
+    PinholeIntrinsics nominal{640, 480, 500, 500, 319.5, 239.5};
+    config_ =
+        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
+                              [nominal](const MapperConfig& c) { return c.validate(nominal); });
+    r.finish();
+    ctx_ = graphContext(nh.getNamespace());
+    if (config_.loop.enabled) ctx_->map.attachLoopClosure();
+    pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
+    status_pub_ = nh.advertise<rig_msgs::LoopClosureStatus>("loop_closure/status", 20);
+    image_transport::ImageTransport it(nh);
+    virtual_pub_ = it.advertise("loop_closure/virtual_depth", 1);
+    queue_ =
+        std::make_unique<FrameQueue<Frame>>(mode_, 100000, [this](const Frame& f) { process(f); });
+    if (config_.loop.enabled) {
+      depth_sub_ = it.subscribeCamera("depth/image", 50, &LoopClosureNodelet::onDepth, this);
+      status_sub_ = nh.subscribe("status", 100, &LoopClosureNodelet::onStatus, this);
+    }
+    tf_timer_ = nh.createTimer(ros::Duration(1.0 / tf_rate), [this](const ros::TimerEvent&) {
+      const ros::Time now = ros::Time::now();
+      if (now <= last_tf_stamp_ && now + ros::Duration(1.0) > last_tf_stamp_) return;  // no news
+      last_tf_stamp_ = now;
+      geometry_msgs::TransformStamped t;
+      t.header.stamp = now;
+      t.header.frame_id = map_frame_;
+      t.child_frame_id = odom_frame_;
+      t.transform = conv::toTransformMsg(ctx_->map.latestCorrection());
+      tf_pub_.sendTransform(t);
+    });
+    NODELET_INFO("loop_closure: %s, every %d frames, %s -> %s at %.0f Hz",
+                 config_.loop.enabled ? "on" : "off", config_.loop.cl_step, map_frame_.c_str(),
+                 odom_frame_.c_str(), tf_rate);
+  }
+
+  void onDepth(const sensor_msgs::ImageConstPtr& image,
+               const sensor_msgs::CameraInfoConstPtr& info) {
+    std::lock_guard<std::mutex> lock(pair_mutex_);
+    if (auto p = pairs_->addA(image->header.stamp, {image, info}))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+  void onStatus(const rig_msgs::TrackingStatusConstPtr& s) {
+    if (s->input_rejected) return;
+    std::lock_guard<std::mutex> lock(pair_mutex_);
+    if (auto p = pairs_->addB(s->header.stamp, s))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+
+  void process(const Frame& f) {
+    const double stamp = f.image->header.stamp.toSec();
+    Eigen::Isometry3d X = ctx_->map.latestCorrection();
+    try {
+      if (stamp < last_stamp_) {  // time jumped back: the graph was reset
+        frames_ = 0;
+        attempts_ = accepted_ = 0;
+      }
+      const double prev = last_stamp_;
+      last_stamp_ = stamp;
+      ++frames_;
+      if (f.status->tracked && frames_ % config_.loop.cl_step == 0) {
+        // The offline order: this frame's attempt sees the map fused up to the previous frame.
+        if (mode_ == Mode::kReplay && prev >= 0.0 && !ctx_->map.waitFused(prev, wait_timeout_s_))
+          NODELET_WARN("loop_closure: the map did not catch up with frame %.3f within %.0f s", prev,
+                       wait_timeout_s_);
+        const Eigen::Isometry3d T_odom_C = conv::fromPoseMsg(f.status->camera_pose);
+        const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
+        const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
+        std::optional<LoopClosureResult> res = ctx_->map.read([&](const VoxelMap* map) {
+          std::optional<LoopClosureResult> out;
+          if (map && map->occupiedCount() > 0)
+            out = closeLoop(*map, depth, K, config_.range, X * T_odom_C, config_.loop);
+          return out;
+        });
+        if (res) {
+          ++attempts_;
+          if (res->accepted) {
+            ++accepted_;
+            X = res->T_W_C * T_odom_C.inverse();
+          }
+          publishStatus(f, *res);
+          if (virtual_pub_.getNumSubscribers() > 0) {
+            const DepthImage virt = ctx_->map.read([&](const VoxelMap* map) {
+              return map ? map->raycast(K, X * T_odom_C, config_.range) : DepthImage();
+            });
+            if (!virt.empty()) {
+              std_msgs::Header h = f.image->header;
+              virtual_pub_.publish(conv::depthToMsg(virt, h));
+            }
+          }
+        }
+      }
+    } catch (const std::exception& e) {
+      NODELET_ERROR_THROTTLE(1.0, "loop_closure: frame at %.3f: %s", stamp, e.what());
+    }
+    ctx_->map.decide(stamp, X);  // every frame gets a decision, so fusion never waits in vain
+  }
+
+  void publishStatus(const Frame& f, const LoopClosureResult& r) {
+    rig_msgs::LoopClosureStatus s;
+    s.header.stamp = f.image->header.stamp;
+    s.header.frame_id = map_frame_;
+    s.accepted = r.accepted;
+    s.reason = r.reason;
+    s.correction_m = r.correction_m;
+    s.correction_deg = r.correction_deg;
+    s.model_fraction = r.model_fraction;
+    s.normal_spread = r.normal_spread;
+    s.model_cells = r.model_cells;
+    s.current_cells = r.current_cells;
+    s.matches = r.matches;
+    s.error_rms_m = r.error_rms_m;
+    s.ms_raycast = r.ms_raycast;
+    s.ms_reduce = r.ms_reduce;
+    s.ms_register = r.ms_register;
+    s.attempts = attempts_;
+    s.accepted_total = accepted_;
+    status_pub_.publish(s);
+  }
+
+  Mode mode_ = Mode::kLive;
+  std::string map_frame_, odom_frame_;
+  double wait_timeout_s_ = 10.0;
+  MapperConfig config_;
+  std::shared_ptr<GraphContext> ctx_;
+  std::mutex pair_mutex_;
+  std::unique_ptr<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>> pairs_;
+  double last_stamp_ = -1.0;
+  std::uint64_t frames_ = 0;
+  std::uint32_t attempts_ = 0, accepted_ = 0;
+  image_transport::CameraSubscriber depth_sub_;
+  ros::Subscriber status_sub_;
+  ros::Publisher status_pub_;
+  image_transport::Publisher virtual_pub_;
+  tf2_ros::TransformBroadcaster tf_pub_;
+  ros::Timer tf_timer_;
+  ros::Time last_tf_stamp_;
+  std::unique_ptr<FrameQueue<Frame>> queue_;
+};
+
+}  // namespace graph
+}  // namespace depth_track
+
+PLUGINLIB_EXPORT_CLASS(depth_track::graph::LoopClosureNodelet, nodelet::Nodelet)

@@ -1,0 +1,497 @@
+// depth_track/registration: owns the tracker state (the cell odometry stage). `cells` in; out: tf
+// odom -> base_link (through the static base_link -> camera transform from tf, waited for and
+// never assumed), `odom` (nav_msgs/Odometry: child_frame_id, twist, covariance from the normal
+// equations), `path` (capped), `status` (rig_msgs/TrackingStatus per frame). Optional motion
+// prior from tf (~guess_frame). While LOST, relocalises against the map's ray cast at the held
+// pose (the fusion nodelet's map, same manager). Services: ~reset, ~reset_to_pose,
+// ~save_trajectory (TUM, odom and map poses), ~pause, ~resume.
+#include <geometry_msgs/TransformStamped.h>
+#include <nav_msgs/Odometry.h>
+#include <nav_msgs/Path.h>
+#include <nodelet/nodelet.h>
+#include <rig_msgs/ResetToPose.h>
+#include <rig_msgs/SaveFile.h>
+#include <rig_msgs/TrackingStatus.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+#include <pluginlib/class_list_macros.hpp>
+
+#include <deque>
+#include <filesystem>
+#include <sstream>
+
+#include "depth_track/core/cell_odometry.hpp"
+#include "depth_track/core/cell_reducer.hpp"
+#include "depth_track/core/map/mapper_params.hpp"
+#include "depth_track/core/tracker_params.hpp"
+#include "depth_track/core/tum_io.hpp"
+#include "depth_track/ros/conversions.hpp"
+#include "depth_track/ros/params.hpp"
+#include "graph_common.hpp"
+
+namespace depth_track {
+namespace graph {
+
+class RegistrationNodelet : public nodelet::Nodelet {
+ public:
+  ~RegistrationNodelet() override {
+    if (queue_) queue_->stop();
+  }
+
+ private:
+  void onInit() override {
+    ros::NodeHandle& nh = getNodeHandle();
+    ros::NodeHandle& pnh = getPrivateNodeHandle();
+    rosparams::ParamReader r(pnh, "registration");
+    const Mode mode = parseMode(r.getString("mode"));
+    odom_frame_ = r.getString("odom_frame");
+    base_frame_ = r.getString("base_frame");
+    map_frame_ = r.getString("map_frame");
+    guess_frame_ = r.getString("guess_frame");
+    guess_timeout_s_ = r.getDouble("guess_timeout");
+    static_tf_timeout_s_ = r.getDouble("static_tf_timeout");
+    publish_tf_ = r.getBool("publish_tf");
+    path_length_ = r.getInt("path_length");
+    lost_pos_var_ = r.getDouble("lost_position_var");
+    lost_rot_var_ = r.getDouble("lost_rotation_var");
+    relocalise_ = r.getBool("relocalise");
+    relocalise_every_ = r.getInt("relocalise_every");
+    trajectory_path_ = r.getString("trajectory_path");
+    const std::string mount_text = r.getString("camera_mount");
+    const std::string mount_frame = r.getString("camera_frame");
+    std::optional<Eigen::Isometry3d> mount;
+    if (!mount_text.empty()) {
+      std::istringstream in(mount_text);
+      double v[7];
+      bool ok = true;
+      for (double& x : v) ok = ok && static_cast<bool>(in >> x);
+      geometry_msgs::Pose p;
+      p.position.x = v[0], p.position.y = v[1], p.position.z = v[2];
+      p.orientation.x = v[3], p.orientation.y = v[4], p.orientation.z = v[5],
+      p.orientation.w = v[6];
+      try {
+        if (!ok) throw std::invalid_argument("needs 7 numbers");
+        mount = conv::fromPoseMsg(p);
+      } catch (const std::exception& e) {
+        r.problem(pnh.resolveName("camera_mount") + " = '" + mount_text +
+                  "': 'x y z qx qy qz qw' (m, unit quaternion) expected: " + e.what());
+      }
+    }
+    config_ = r.table<TrackerConfig>(
+        ros::NodeHandle(nh, "tracker"), trackerParams(), TrackerConfig{},
+        [](const TrackerConfig& c) {
+          return c.validate(PinholeIntrinsics{640, 480, 500, 500, 319.5, 239.5});
+        });
+    // The ray-cast range of a relocalisation is the mapper's (its virtual images).
+    mapper_config_ =
+        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
+                              [](const MapperConfig& c) { return c.map.validate(); });
+    r.finish();
+    ctx_ = graphContext(nh.getNamespace());
+
+    if (mount) {  // the launch file's mount, for everyone on /tf_static
+      geometry_msgs::TransformStamped t;
+      t.header.stamp = ros::Time::now();
+      t.header.frame_id = base_frame_;
+      t.child_frame_id = mount_frame;
+      t.transform = conv::toTransformMsg(*mount);
+      static_tf_pub_.sendTransform(t);
+    }
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>(ros::Duration(30.0));
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_, nh);
+    odom_pub_ = nh.advertise<nav_msgs::Odometry>("odom", 50);
+    path_pub_ = nh.advertise<nav_msgs::Path>("path", 2);
+    status_pub_ = nh.advertise<rig_msgs::TrackingStatus>("status", 50);
+    reset_srv_ = pnh.advertiseService("reset", &RegistrationNodelet::onReset, this);
+    reset_pose_srv_ =
+        pnh.advertiseService("reset_to_pose", &RegistrationNodelet::onResetToPose, this);
+    save_srv_ = pnh.advertiseService("save_trajectory", &RegistrationNodelet::onSave, this);
+    pause_srv_ = pnh.advertiseService("pause", &RegistrationNodelet::onPause, this);
+    resume_srv_ = pnh.advertiseService("resume", &RegistrationNodelet::onResume, this);
+    queue_ = std::make_unique<FrameQueue<sensor_msgs::PointCloud2ConstPtr>>(
+        mode, 100000, [this](const sensor_msgs::PointCloud2ConstPtr& m) { process(m); });
+    info_sub_ = nh.subscribe("depth/camera_info", 5, &RegistrationNodelet::onInfo, this);
+    cells_sub_ = nh.subscribe("cells", 50, &RegistrationNodelet::onCells, this);
+    NODELET_INFO("registration: %s, %s -> %s, method %s%s",
+                 mode == Mode::kReplay ? "replay" : "live", odom_frame_.c_str(),
+                 base_frame_.c_str(), toString(config_.registration.method).c_str(),
+                 guess_frame_.empty() ? "" : (", prior from tf " + guess_frame_).c_str());
+  }
+
+  void onInfo(const sensor_msgs::CameraInfoConstPtr& info) {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    info_ = info;
+  }
+  void onCells(const sensor_msgs::PointCloud2ConstPtr& m) { queue_->push(m); }
+
+  // ---- per frame ---------------------------------------------------------------------------
+
+  rig_msgs::TrackingStatus newStatus(const std_msgs::Header& h) const {
+    rig_msgs::TrackingStatus s;
+    s.header.stamp = h.stamp;
+    s.header.frame_id = odom_frame_;
+    s.camera_frame = h.frame_id;
+    s.frame = frames_;
+    s.camera_pose.orientation.w = 1.0;
+    return s;
+  }
+  void publishStatus(rig_msgs::TrackingStatus& s) {
+    s.frames_rejected = rejected_;
+    s.frames_dropped = ctx_->skipped_ingest + ctx_->skipped_reduce + ctx_->skipped_registration;
+    status_pub_.publish(s);
+  }
+  void reject(const std_msgs::Header& h, const std::string& why) {
+    ++rejected_;
+    NODELET_ERROR_THROTTLE(1.0, "registration: frame at %.3f rejected: %s", h.stamp.toSec(),
+                           why.c_str());
+    rig_msgs::TrackingStatus s = newStatus(h);
+    s.state = odometry_ ? static_cast<std::uint8_t>(odometry_->state())
+                        : static_cast<std::uint8_t>(rig_msgs::TrackingStatus::LOST);
+    s.state_name = odometry_ ? toString(odometry_->state()) : "LOST";
+    s.input_rejected = true;
+    s.failure = "registration: " + why;
+    publishStatus(s);
+  }
+
+  /// base_frame -> camera from tf (static); false while it is missing, with a throttled warning.
+  bool cameraMount(const std::string& camera_frame, const ros::Time& stamp) {
+    if (have_mount_ && camera_frame == camera_frame_) return true;
+    try {
+      const auto t = tf_buffer_->lookupTransform(base_frame_, camera_frame, ros::Time(0));
+      T_base_C_ = conv::fromTransformMsg(t.transform);
+      camera_frame_ = camera_frame;
+      have_mount_ = true;
+      NODELET_INFO("registration: camera mount %s -> %s from tf: t = (%.3f, %.3f, %.3f) m",
+                   base_frame_.c_str(), camera_frame.c_str(), T_base_C_.translation().x(),
+                   T_base_C_.translation().y(), T_base_C_.translation().z());
+      return true;
+    } catch (const std::exception& e) {
+      NODELET_WARN_THROTTLE(static_tf_timeout_s_,
+                            "registration: waiting for the static transform %s -> %s (from "
+                            "/tf_static, the robot description or the launch file's camera_mount); "
+                            "frames are not tracked until it comes (%s)",
+                            base_frame_.c_str(), camera_frame.c_str(), e.what());
+      (void)stamp;
+      return false;
+    }
+  }
+
+  std::optional<Eigen::Isometry3d> prior(const ros::Time& stamp) {
+    if (guess_frame_.empty()) return std::nullopt;
+    try {
+      // Waited for in wall time: tf2's own timeout runs on the bag's clock, which stops with it.
+      const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(guess_timeout_s_);
+      while (!tf_buffer_->canTransform(guess_frame_, base_frame_, stamp) &&
+             ros::WallTime::now() < deadline)
+        ros::WallDuration(0.002).sleep();
+      const auto t = tf_buffer_->lookupTransform(guess_frame_, base_frame_, stamp);
+      const Eigen::Isometry3d T_g_base = conv::fromTransformMsg(t.transform);
+      std::optional<Eigen::Isometry3d> out;
+      if (have_guess_)  // camera motion T_Cprev_Ccur = T_C_base T_base_prev_cur T_base_C
+        out = T_base_C_.inverse() * (T_g_base_prev_.inverse() * T_g_base) * T_base_C_;
+      T_g_base_prev_ = T_g_base;
+      have_guess_ = true;
+      return out;
+    } catch (const std::exception& e) {
+      NODELET_WARN_THROTTLE(5.0,
+                            "registration: no motion prior from tf %s -> %s at %.3f (%s); "
+                            "constant velocity instead",
+                            guess_frame_.c_str(), base_frame_.c_str(), stamp.toSec(), e.what());
+      have_guess_ = false;
+      return std::nullopt;
+    }
+  }
+
+  void process(const sensor_msgs::PointCloud2ConstPtr& m) {
+    ctx_->skipped_registration = queue_->skipped();
+    const std_msgs::Header& h = m->header;
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    try {
+      switch (guard_.check(h.stamp)) {
+        case StampGuard::Verdict::kReject:
+          reject(h, "stamp " + std::to_string(h.stamp.toSec()) + " s does not increase (last " +
+                        std::to_string(guard_.lastStamp().toSec()) + " s)");
+          return;
+        case StampGuard::Verdict::kReset:
+          NODELET_WARN(
+              "registration: time jumped back to %.3f s (a looped or restarted bag): the "
+              "graph resets (tracking, path, map)",
+              h.stamp.toSec());
+          // The camera mount is static and stays; tf2's listener clears the rest itself.
+          resetLocked(std::nullopt);
+          guard_.check(h.stamp);
+          break;
+        case StampGuard::Verdict::kNext:
+          break;
+      }
+      if (paused_) return;
+      sensor_msgs::CameraInfoConstPtr info;
+      {
+        std::lock_guard<std::mutex> l(info_mutex_);
+        info = info_;
+      }
+      if (!info) {
+        reject(h, "no camera_info yet on " + info_sub_.getTopic());
+        return;
+      }
+      const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*info);
+      if (!cameraMount(h.frame_id, h.stamp)) {
+        reject(h, "waiting for tf " + base_frame_ + " -> " + h.frame_id);
+        return;
+      }
+      const std::shared_ptr<const CellCloud> cells = conv::cellsFromCloud(*m, K.width, K.height);
+      if (!odometry_ || K.width != K_.width || K.height != K_.height) {
+        K_ = K;
+        odometry_ = std::make_unique<CellOdometry>(K, config_.odometryConfig(), T_base_C_);
+        relocaliser_ = std::make_unique<CellReducer>(K, config_.reducerConfig());
+      }
+      ++frames_;
+      const auto t0 = std::chrono::steady_clock::now();
+      const auto guess = prior(h.stamp);
+      FrameStatus st = odometry_->track(cells, guess);
+      rig_msgs::TrackingStatus s = newStatus(h);
+      s.prior_used = guess.has_value();
+      if (!st.tracked) {
+        ++lost_frames_;
+        if (relocalise_ && lost_frames_ % relocalise_every_ == 0) tryRelocalise(h, &st, &s);
+      } else {
+        lost_frames_ = 0;
+      }
+      const double ms_register =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      publishFrame(h, st, ms_register, s);
+    } catch (const std::exception& e) {
+      reject(h, e.what());
+    }
+  }
+
+  /// Registers the lost frame onto the map ray-cast at the held pose (wider search).
+  void tryRelocalise(const std_msgs::Header& h, FrameStatus* st, rig_msgs::TrackingStatus* s) {
+    const Eigen::Isometry3d T_map_odom = ctx_->map.latestCorrection();
+    const Eigen::Isometry3d T_odom_C = odometry_->pose();
+    DepthImage virt = ctx_->map.read([&](const VoxelMap* map) {
+      if (!map || map->occupiedCount() == 0) return DepthImage();
+      return map->raycast(K_, T_map_odom * T_odom_C, mapper_config_.range);
+    });
+    if (virt.empty()) {
+      s->failure = "no map to relocalise against (fusion not running in this manager, or empty)";
+      return;
+    }
+    const auto ref = relocaliser_->reduce(virt, h.stamp.toSec(), h.frame_id);
+    const RelocalisationResult rr = odometry_->relocalise(*ref, T_odom_C, T_odom_C);
+    if (rr.accepted) {
+      NODELET_INFO("registration: relocalised against the map at %.3f s (%s)", h.stamp.toSec(),
+                   rr.reason.c_str());
+      st->tracked = true;
+      st->T_W_C = rr.T_W_C;
+      st->matches = rr.registration.matches;
+      st->error_rms_m = rr.registration.error_rms_m;
+      st->normal_matrix = rr.registration.normal_matrix;
+      st->T_W_Cref = T_odom_C;
+      st->failure = "relocalised: " + rr.reason;
+    } else {
+      st->failure += "; relocalisation: " + rr.reason;
+    }
+    st->state = odometry_->state();
+  }
+
+  void publishFrame(const std_msgs::Header& h, const FrameStatus& st, double ms_register,
+                    rig_msgs::TrackingStatus& s) {
+    const Eigen::Isometry3d T_odom_C = st.T_W_C;
+    const Eigen::Isometry3d T_odom_base = T_odom_C * T_base_C_.inverse();
+    // Odometry: pose, twist in the body frame from the last frame's motion, covariance.
+    nav_msgs::Odometry odom;
+    odom.header.stamp = h.stamp;
+    odom.header.frame_id = odom_frame_;
+    odom.child_frame_id = base_frame_;
+    odom.pose.pose = conv::toPoseMsg(T_odom_base);
+    const std::array<double, 36> cov =
+        st.tracked && st.matches > 0
+            ? conv::poseCovariance(st.normal_matrix, std::max(st.error_rms_m, 1e-4), st.T_W_Cref,
+                                   T_odom_base.translation())
+            : conv::diagonalCovariance(lost_pos_var_, lost_rot_var_);
+    std::copy(cov.begin(), cov.end(), odom.pose.covariance.begin());
+    if (have_last_ && h.stamp > last_stamp_) {
+      const double dt = (h.stamp - last_stamp_).toSec();
+      const Eigen::Isometry3d d = last_T_odom_base_.inverse() * T_odom_base;
+      const Eigen::AngleAxisd aa(d.rotation());
+      const Eigen::Vector3d w = aa.angle() * aa.axis() / dt, v = d.translation() / dt;
+      odom.twist.twist.linear.x = v.x(), odom.twist.twist.linear.y = v.y(),
+      odom.twist.twist.linear.z = v.z();
+      odom.twist.twist.angular.x = w.x(), odom.twist.twist.angular.y = w.y(),
+      odom.twist.twist.angular.z = w.z();
+      for (int i = 0; i < 36; ++i)
+        odom.twist.covariance[i] = 2.0 * odom.pose.covariance[i] / (dt * dt);
+    }
+    last_T_odom_base_ = T_odom_base;
+    last_stamp_ = h.stamp;
+    have_last_ = true;
+    if (publish_tf_) {
+      geometry_msgs::TransformStamped t;
+      t.header = odom.header;
+      t.child_frame_id = base_frame_;
+      t.transform = conv::toTransformMsg(T_odom_base);
+      tf_pub_.sendTransform(t);
+    }
+    odom_pub_.publish(odom);
+    // Path and trajectory.
+    geometry_msgs::PoseStamped ps;
+    ps.header = odom.header;
+    ps.pose = odom.pose.pose;
+    path_.header = odom.header;
+    path_.poses.push_back(ps);
+    while (static_cast<int>(path_.poses.size()) > path_length_)
+      path_.poses.erase(path_.poses.begin());
+    if (path_pub_.getNumSubscribers() > 0) path_pub_.publish(path_);
+    trajectory_.push_back({h.stamp.toSec(), T_odom_C});
+    if (trajectory_.size() > 200000) trajectory_.pop_front();
+    // Status.
+    s.state = static_cast<std::uint8_t>(st.state);
+    s.state_name = toString(st.state);
+    s.tracked = st.tracked;
+    s.failure = st.failure;
+    s.new_keyframe = st.new_keyframe;
+    s.camera_pose = conv::toPoseMsg(T_odom_C);
+    s.cells = st.cells;
+    s.candidates = st.candidates;
+    s.matches = st.matches;
+    s.fm_matches = st.fm_matches;
+    s.iterations = st.iterations;
+    s.error_rms_m = st.error_rms_m;
+    s.ms_register = ms_register;
+    s.latency_ms = (ros::Time::now() - h.stamp).toSec() * 1e3;
+    publishStatus(s);
+  }
+
+  // ---- services ----------------------------------------------------------------------------
+
+  void resetLocked(const std::optional<Eigen::Isometry3d>& T_odom_base) {
+    if (odometry_) {
+      if (T_odom_base)
+        odometry_->reset(*T_odom_base * T_base_C_);
+      else
+        odometry_->reset();
+    }
+    if (!T_odom_base) ctx_->map.clear();  // a new start: the map of the old one does not apply
+    path_.poses.clear();
+    trajectory_.clear();
+    frames_ = 0;
+    lost_frames_ = 0;
+    have_last_ = false;
+    have_guess_ = false;
+    guard_.clear();
+  }
+  bool onReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    queue_->clear();
+    resetLocked(std::nullopt);
+    res.success = true;
+    res.message = "tracking, path, trajectory and map reset; next frame starts at the origin";
+    NODELET_INFO("registration: %s", res.message.c_str());
+    return true;
+  }
+  bool onResetToPose(rig_msgs::ResetToPose::Request& req, rig_msgs::ResetToPose::Response& res) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    try {
+      const Eigen::Isometry3d T = conv::fromPoseMsg(req.pose);
+      if (!have_mount_) throw std::runtime_error("the camera mount is not known yet (no tf)");
+      if (!odometry_) throw std::runtime_error("no frame was tracked yet");
+      resetLocked(T);
+      res.success = true;
+      res.message = "tracking restarts at the given pose of " + base_frame_ + " in " + odom_frame_;
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = std::string("reset_to_pose refused: ") + e.what();
+    }
+    NODELET_INFO("registration: %s", res.message.c_str());
+    return true;
+  }
+  bool onSave(rig_msgs::SaveFile::Request& req, rig_msgs::SaveFile::Response& res) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    res.path = req.path.empty() ? trajectory_path_ : req.path;
+    try {
+      const Trajectory odom(trajectory_.begin(), trajectory_.end());
+      Trajectory map;
+      for (const auto& p : odom) {
+        const auto X = ctx_->map.correctionFor(p.stamp_s, false, 0.0);
+        map.push_back({p.stamp_s, X.value_or(Eigen::Isometry3d::Identity()) * p.T_W_C});
+      }
+      writeTumTrajectory(res.path, odom,
+                         "depth_track registration: T_" + odom_frame_ + "_" + camera_frame_);
+      const std::filesystem::path p(res.path);
+      const std::string map_path =
+          (p.parent_path() / (p.stem().string() + "_map" + p.extension().string())).string();
+      writeTumTrajectory(map_path, map,
+                         "depth_track registration: T_" + map_frame_ + "_" + camera_frame_);
+      res.success = true;
+      res.message = std::to_string(odom.size()) + " poses of " + camera_frame_ + " in " +
+                    odom_frame_ + " -> " + res.path + ", in " + map_frame_ + " -> " + map_path;
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = std::string("save_trajectory failed: ") + e.what();
+    }
+    NODELET_INFO("registration: %s", res.message.c_str());
+    return true;
+  }
+  bool onPause(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    paused_ = true;
+    res.success = true;
+    res.message = "paused: frames are ignored until ~resume";
+    return true;
+  }
+  bool onResume(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    paused_ = false;
+    res.success = true;
+    res.message = "resumed";
+    return true;
+  }
+
+  std::string odom_frame_, base_frame_, map_frame_, guess_frame_, camera_frame_, trajectory_path_;
+  double guess_timeout_s_ = 0.05, static_tf_timeout_s_ = 2.0, lost_pos_var_ = 1.0,
+         lost_rot_var_ = 0.1;
+  bool publish_tf_ = true, relocalise_ = true;
+  int path_length_ = 2000, relocalise_every_ = 3;
+  TrackerConfig config_;
+  MapperConfig mapper_config_;
+  std::shared_ptr<GraphContext> ctx_;
+
+  std::mutex state_mutex_;  // odometry, path, trajectory (worker thread vs services)
+  std::unique_ptr<CellOdometry> odometry_;
+  std::unique_ptr<CellReducer> relocaliser_;
+  PinholeIntrinsics K_;
+  Eigen::Isometry3d T_base_C_ = Eigen::Isometry3d::Identity();
+  bool have_mount_ = false;
+  Eigen::Isometry3d T_g_base_prev_ = Eigen::Isometry3d::Identity();
+  bool have_guess_ = false;
+  StampGuard guard_;
+  std::atomic<bool> paused_{false};
+  std::uint32_t frames_ = 0, rejected_ = 0;
+  int lost_frames_ = 0;
+  Eigen::Isometry3d last_T_odom_base_ = Eigen::Isometry3d::Identity();
+  ros::Time last_stamp_;
+  bool have_last_ = false;
+  nav_msgs::Path path_;
+  std::deque<StampedPose> trajectory_;
+
+  std::mutex info_mutex_;
+  sensor_msgs::CameraInfoConstPtr info_;
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+  tf2_ros::TransformBroadcaster tf_pub_;
+  tf2_ros::StaticTransformBroadcaster static_tf_pub_;
+  ros::Subscriber info_sub_, cells_sub_;
+  ros::Publisher odom_pub_, path_pub_, status_pub_;
+  ros::ServiceServer reset_srv_, reset_pose_srv_, save_srv_, pause_srv_, resume_srv_;
+  std::unique_ptr<FrameQueue<sensor_msgs::PointCloud2ConstPtr>> queue_;
+};
+
+}  // namespace graph
+}  // namespace depth_track
+
+PLUGINLIB_EXPORT_CLASS(depth_track::graph::RegistrationNodelet, nodelet::Nodelet)
