@@ -1,6 +1,9 @@
 #include "depth_track/core/servotrack_kinematics.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <numeric>
+#include <optional>
 #include <stdexcept>
 
 #include "depth_track/core/camera.hpp"
@@ -9,6 +12,78 @@ namespace depth_track {
 
 namespace {
 bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
+
+constexpr double kDegToRad = M_PI / 180.0;
+
+template <class Sample>
+void checkStream(const std::vector<Sample>& s, const char* name) {
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (!std::isfinite(s[i].stamp_s))
+      throw std::invalid_argument(std::string(name) + " sample " + std::to_string(i) +
+                                  ": stamp is not finite");
+    if (i > 0 && s[i].stamp_s < s[i - 1].stamp_s)
+      throw std::invalid_argument(std::string(name) + " sample " + std::to_string(i) +
+                                  ": stamp goes back in time (" + std::to_string(s[i].stamp_s) +
+                                  " s after " + std::to_string(s[i - 1].stamp_s) + " s)");
+  }
+}
+
+/// Linear interpolation of value(sample) at t; nullopt outside the stream's span.
+template <class Sample, class Value>
+std::optional<double> interpolate(const std::vector<Sample>& s, double t, Value value) {
+  if (s.empty() || !(t >= s.front().stamp_s) || !(t <= s.back().stamp_s)) return std::nullopt;
+  const auto hi = std::lower_bound(s.begin(), s.end(), t,
+                                   [](const Sample& a, double x) { return a.stamp_s < x; });
+  if (hi == s.begin() || hi->stamp_s == t) return value(*hi);
+  const auto lo = hi - 1;
+  const double span = hi->stamp_s - lo->stamp_s;
+  if (!(span > 0.0)) return value(*hi);
+  const double w = (t - lo->stamp_s) / span;
+  return (1.0 - w) * value(*lo) + w * value(*hi);
+}
+
+double medianInterval(std::vector<double> d) {
+  if (d.empty()) return 0.0;
+  std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+  return d[d.size() / 2];
+}
+
+template <class Sample>
+double medianPeriod(const std::vector<Sample>& s) {
+  std::vector<double> d;
+  for (std::size_t i = 1; i < s.size(); ++i) d.push_back(s[i].stamp_s - s[i - 1].stamp_s);
+  return medianInterval(d);
+}
+
+/// Planar truck state integrated from the RC stream (rear axle, heading counter-clockwise).
+struct TruckDeadReckoning {
+  double x = 0.0, y = 0.0, heading = 0.0, speed = 0.0, steer = 0.0, t = 0.0;
+};
+
+// Advances `s` to time t_end with the demands held (zero-order hold, the board's own rule):
+// exact first-order lags, the arc integrated in steps of at most 1 ms (midpoint heading).
+void advanceTruck(TruckDeadReckoning& s, double t_end, double speed_dem, double steer_dem,
+                  const TruckGeometry& g) {
+  constexpr double kStep = 1e-3;
+  while (s.t < t_end) {
+    const double h = std::min(kStep, t_end - s.t);
+    const auto lag = [h](double x, double demand, double tau) {
+      return tau > 0.0 ? demand + (x - demand) * std::exp(-h / tau) : demand;
+    };
+    const double v1 = lag(s.speed, speed_dem, g.speed_lag_s);
+    const double d1 = lag(s.steer, steer_dem, g.steer_lag_s);
+    const double v = 0.5 * (s.speed + v1), steer = 0.5 * (s.steer + d1);
+    const double dheading = v * std::tan(steer) / g.wheelbase_m * h;
+    const double mid = s.heading + 0.5 * dheading;
+    s.x += v * std::cos(mid) * h;
+    s.y += v * std::sin(mid) * h;
+    s.heading += dheading;
+    s.speed = v1;
+    s.steer = d1;
+    s.t += h;
+  }
+}
+
 }  // namespace
 
 std::vector<std::string> TrackGeometry::validate() const {
@@ -68,6 +143,100 @@ Eigen::Isometry3d cameraPoseOnTrack(double track_pos_m, double pitch_rad, double
   T_P_C.linear() = rotationBodyFromOptical();
 
   return T_W_K * T_K_Y * T_Y_P * T_P_C;
+}
+
+std::vector<std::string> TruckGeometry::validate() const {
+  std::vector<std::string> problems;
+  if (!(wheelbase_m > 0.0 && std::isfinite(wheelbase_m)))
+    problems.push_back("truck wheelbase_m must be > 0");
+  if (!(max_steer_deg > 0.0 && max_steer_deg < 89.0))
+    problems.push_back("truck max_steer_deg must be in (0, 89) deg");
+  if (!(steer_lag_s >= 0.0 && std::isfinite(steer_lag_s)))
+    problems.push_back("truck steer_lag_s must be >= 0");
+  if (!(speed_lag_s >= 0.0 && std::isfinite(speed_lag_s)))
+    problems.push_back("truck speed_lag_s must be >= 0");
+  if (!T_B_C.matrix().allFinite() ||
+      !(T_B_C.linear().transpose() * T_B_C.linear()).isIdentity(1e-6))
+    problems.push_back("truck T_B_C must be a finite rigid transform");
+  return problems;
+}
+
+double RigSensorStreams::samplePeriod() const {
+  return !track.empty() ? medianPeriod(track) : medianPeriod(truck);
+}
+
+std::string RigSensorStreams::describe() const {
+  if (hasServoTrack()) return "track_state + carriage_sensors";
+  if (hasServoTruck()) return "truck_rc";
+  return "";
+}
+
+Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<double>& stamps_s,
+                            const RigGeometry& geometry, double shift_s) {
+  if (!std::isfinite(shift_s)) throw std::invalid_argument("sensorTrajectory: shift not finite");
+  Trajectory out;
+  if (streams.hasServoTrack()) {
+    checkStream(streams.track, "track_state");
+    checkStream(streams.gimbal, "carriage_sensors");
+    for (const auto& s : streams.track)
+      if (!std::isfinite(s.track_pos_m))
+        throw std::invalid_argument("track_state: track position not finite");
+    for (const auto& s : streams.gimbal)
+      if (!std::isfinite(s.pitch_deg) || !std::isfinite(s.yaw_deg))
+        throw std::invalid_argument("carriage_sensors: pitch or yaw not finite");
+    for (const double t : stamps_s) {
+      const double ts = t + shift_s;
+      const auto pos = interpolate(streams.track, ts, [](const auto& s) { return s.track_pos_m; });
+      const auto pitch = interpolate(streams.gimbal, ts, [](const auto& s) { return s.pitch_deg; });
+      const auto yaw = interpolate(streams.gimbal, ts, [](const auto& s) { return s.yaw_deg; });
+      if (!pos || !pitch || !yaw) continue;
+      out.push_back(
+          {t, cameraPoseOnTrack(*pos, *pitch * kDegToRad, *yaw * kDegToRad, geometry.track)});
+    }
+    return out;
+  }
+  if (!streams.hasServoTruck())
+    throw std::invalid_argument(
+        "sensorTrajectory: no sensor stream (need track_state + carriage_sensors, or truck_rc)");
+  const TruckGeometry& g = geometry.truck;
+  const auto problems = g.validate();
+  if (!problems.empty())
+    throw std::invalid_argument("invalid TruckGeometry: " + joinProblems(problems));
+  const auto& rc = streams.truck;
+  checkStream(rc, "truck_rc");
+  for (const auto& s : rc)
+    if (!std::isfinite(s.speed_mps) || !std::isfinite(s.steering))
+      throw std::invalid_argument("truck_rc: speed or steering not finite");
+  // Steering +1 is full right; the bicycle's wheel angle is positive to the left.
+  const auto wheel = [&g](const TruckRcSample& s) {
+    return -std::clamp(s.steering, -1.0, 1.0) * g.max_steer_deg * kDegToRad;
+  };
+  std::vector<std::size_t> order(stamps_s.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return stamps_s[a] < stamps_s[b]; });
+  TruckDeadReckoning state;
+  state.t = rc.front().stamp_s;
+  state.speed = rc.front().speed_mps;  // the lags start settled on the first demands
+  state.steer = wheel(rc.front());
+  std::size_t k = 0;  // the sample whose demands hold at state.t
+  std::vector<std::optional<Eigen::Isometry3d>> poses(stamps_s.size());
+  for (const std::size_t q : order) {
+    const double ts = stamps_s[q] + shift_s;
+    if (!(ts >= rc.front().stamp_s) || !(ts <= rc.back().stamp_s)) continue;
+    while (k + 1 < rc.size() && rc[k + 1].stamp_s <= ts) {
+      advanceTruck(state, rc[k + 1].stamp_s, rc[k].speed_mps, wheel(rc[k]), g);
+      ++k;
+    }
+    advanceTruck(state, ts, rc[k].speed_mps, wheel(rc[k]), g);
+    Eigen::Isometry3d T_W_B = Eigen::Isometry3d::Identity();
+    T_W_B.linear() = Eigen::AngleAxisd(state.heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T_W_B.translation() = Eigen::Vector3d(state.x, state.y, 0.0);
+    poses[q] = T_W_B * g.T_B_C;
+  }
+  for (std::size_t i = 0; i < stamps_s.size(); ++i)
+    if (poses[i]) out.push_back({stamps_s[i], *poses[i]});
+  return out;
 }
 
 }  // namespace depth_track

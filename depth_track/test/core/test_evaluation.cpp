@@ -280,3 +280,179 @@ TEST(Evaluation, NonFiniteEstimatesAreDroppedNotPropagated) {
   EXPECT_LT(e.standard.ate_rmse_m, 1e-9);
   EXPECT_LT(e.thesis.max_err_mm.maxCoeff(), 1e-9);
 }
+
+// ---- a run against its references ---------------------------------------------------------------
+
+namespace {
+
+// A ServoTrack run: carriage at 95 mm/s, yaw 10 deg at 1/12 Hz (RT2), 30 Hz readings; the
+// readings of instant t reach the host `delay_s` later.
+constexpr double kYawW = 2 * M_PI / 12.0;
+double yawAt(double t) { return 10.0 * std::sin(kYawW * t); }
+
+RigSensorStreams rt2Streams(double delay_s) {
+  RigSensorStreams s;
+  for (int i = 0; i <= 360; ++i) {
+    const double t = i / 30.0;
+    s.track.push_back({t + delay_s, 0.095 * t});
+    s.gimbal.push_back({t + delay_s, 0.0, yawAt(t)});
+  }
+  return s;
+}
+
+Trajectory rt2Truth(double t0, double t1) {
+  Trajectory gt;
+  // Stamps on the readings' 30 Hz grid (whole multiples, no accumulated rounding).
+  for (int i = static_cast<int>(std::lround(t0 * 30.0)); i <= std::lround(t1 * 30.0); ++i) {
+    const double t = i / 30.0;
+    gt.push_back({t, cameraPoseOnTrack(0.095 * t, 0.0, yawAt(t) * kDeg)});
+  }
+  return gt;
+}
+
+}  // namespace
+
+TEST(RunEvaluation, LatencyScanFindsTheDelayOfTheSensors) {
+  // The readings arrive 3 intervals (100 ms) late: shifting the stream by +3 undoes it exactly
+  // (the scan samples at the readings' own stamps), any other shift leaves the yaw error of
+  // 100 ms of motion (up to 10 deg * w * 0.1 s = 0.52 deg).
+  const RigSensorStreams s = rt2Streams(0.1);
+  const Trajectory truth = rt2Truth(0.5, 11.0);
+  const LatencyScan scan = scanSensorLatency(truth, s, RigGeometry{}, 6);
+  ASSERT_EQ(scan.shifts.size(), 13u);
+  EXPECT_EQ(scan.criterion, "rotation");
+  EXPECT_EQ(scan.best_shift, 3);
+  EXPECT_EQ(scan.best_rot_shift, 3);
+  EXPECT_NEAR(scan.period_s, 1.0 / 30.0, 1e-9);
+  EXPECT_LT(scan.rms_rot_deg[9], 1e-9);  // shift +3
+  EXPECT_LT(scan.rms_pos_mm[9], 1e-6);
+  // At no shift each frame sees the yaw of 100 ms before; relative to the first frame the error
+  // is d_i - d_0 with d_i = yaw(t_i - 0.1) - yaw(t_i) (one axis: angles add).
+  double sum2 = 0.0;
+  const double d0 = yawAt(truth[0].stamp_s - 0.1) - yawAt(truth[0].stamp_s);
+  for (const StampedPose& p : truth) {
+    const double d = yawAt(p.stamp_s - 0.1) - yawAt(p.stamp_s) - d0;
+    sum2 += d * d;
+  }
+  EXPECT_NEAR(scan.rms_rot_deg[6], std::sqrt(sum2 / truth.size()), 1e-9);
+  EXPECT_GT(scan.rms_rot_deg[6], 0.3);
+  // The same frames at every shift: those the most shifted stream still covers.
+  EXPECT_EQ(scan.frames, truth.size());
+  EXPECT_THROW(scanSensorLatency(truth, RigSensorStreams{}, RigGeometry{}, 2),
+               std::invalid_argument);
+  EXPECT_THROW(scanSensorLatency(truth, s, RigGeometry{}, -1), std::invalid_argument);
+}
+
+TEST(RunEvaluation, TableUsesGroundTruthWhenThereIsSome) {
+  const RigSensorStreams s = rt2Streams(0.0);
+  const Trajectory truth = rt2Truth(0.0, 12.0);
+  // The tracker is off by a steady 2 mm sideways (camera x) after the first frame.
+  Trajectory est = truth;
+  for (std::size_t i = 1; i < est.size(); ++i)
+    est[i].T_W_C = est[i].T_W_C * Eigen::Translation3d(0.002, 0.0, 0.0);
+  RunReferences refs;
+  refs.ground_truth = truth;
+  refs.ground_truth_name = "/rig_sim/camera_pose";
+  refs.sensors = s;
+  RunEvaluationOptions opt;
+  opt.latency_scan = 4;
+  const RunEvaluation run = evaluateRun(est, refs, opt);
+  ASSERT_EQ(run.scores.size(), 2u);
+  EXPECT_EQ(run.table, 0);
+  EXPECT_TRUE(run.scores[0].exact);
+  EXPECT_EQ(run.scores[0].name, "ground truth /rig_sim/camera_pose");
+  EXPECT_EQ(run.scores[1].name, "rig sensors (track_state + carriage_sensors)");
+  // The sensors here are exact and sampled at the frames: both rows show the 2 mm, seen in the
+  // start camera frame (the camera has yawed by up to 10 deg: part of it lies along z there).
+  Eigen::Vector3d expected = Eigen::Vector3d::Zero();
+  for (std::size_t i = 1; i < truth.size(); ++i)
+    expected = expected.cwiseMax(
+        ((truth[0].T_W_C.inverse() * truth[i].T_W_C).rotation() * Eigen::Vector3d(2, 0, 0))
+            .cwiseAbs());
+  EXPECT_NEAR(expected.x(), 2.0, 1e-9);
+  EXPECT_NEAR(expected.z(), 2.0 * std::sin(10.0 * kDeg), 1e-3);
+  for (const ReferenceScore& r : run.scores) {
+    ASSERT_TRUE(r.evaluation) << r.problem;
+    EXPECT_EQ(r.evaluation->thesis.frames, est.size());
+    EXPECT_LT((r.evaluation->thesis.max_err_mm - expected).cwiseAbs().maxCoeff(), 1e-6);
+    EXPECT_LT(r.evaluation->thesis.max_err_deg.maxCoeff(), 1e-6);
+  }
+  ASSERT_TRUE(run.sensors_vs_truth);
+  EXPECT_LT(run.sensors_vs_truth->evaluation->thesis.max_err_mm.maxCoeff(), 1e-6);
+  ASSERT_TRUE(run.latency && run.sensor_latency);
+  EXPECT_EQ(run.sensor_latency->best_shift, 0);
+  EXPECT_EQ(run.latency->best_shift, 0);
+  const std::string text = formatRunEvaluation(run);
+  EXPECT_NE(text.find("* ground truth /rig_sim/camera_pose"), std::string::npos) << text;
+  EXPECT_NE(text.find("the reference of the summary line: ground truth"), std::string::npos);
+  EXPECT_EQ(formatSummaryFields(run).rfind("ate_rmse_m=0.00", 0), 0u) << formatSummaryFields(run);
+  EXPECT_NE(
+      formatSummaryFields(run).find("max_err_deg=0.000,0.000,0.000 max_err_mm=2.00,0.00,0.35"),
+      std::string::npos);
+}
+
+TEST(RunEvaluation, MissingReferencesAreSaidNotHidden) {
+  const Trajectory truth = rt2Truth(0.0, 2.0);
+  // Sensors only: the table uses them, and says there is no ground truth.
+  RunReferences sensors_only;
+  sensors_only.sensors = rt2Streams(0.0);
+  RunEvaluation run = evaluateRun(truth, sensors_only);
+  ASSERT_EQ(run.scores.size(), 1u);
+  EXPECT_EQ(run.table, 0);
+  EXPECT_FALSE(run.scores[0].exact);
+  ASSERT_FALSE(run.notes.empty());
+  EXPECT_NE(run.notes[0].find("no ground truth"), std::string::npos);
+  EXPECT_NE(formatRunEvaluation(run).find("sensor errors count as tracking errors"),
+            std::string::npos);
+  // Half a sensor rig: named.
+  RunReferences half;
+  half.sensors.track = sensors_only.sensors.track;
+  half.ground_truth = truth;
+  run = evaluateRun(truth, half);
+  ASSERT_EQ(run.scores.size(), 1u);
+  bool named = false;
+  for (const auto& n : run.notes) named |= n.find("without carriage_sensors") != std::string::npos;
+  EXPECT_TRUE(named);
+  // Nothing to score against: no table, the summary says nan, the notes say why.
+  run = evaluateRun(truth, RunReferences{});
+  EXPECT_EQ(run.table, -1);
+  EXPECT_EQ(formatSummaryFields(run),
+            "ate_rmse_m=nan max_err_deg=nan,nan,nan max_err_mm=nan,nan,nan");
+  EXPECT_EQ(run.notes.size(), 2u);
+  // Ground truth that never meets the estimate's stamps: a score with its problem, no table.
+  RunReferences late;
+  late.ground_truth = rt2Truth(100.0, 101.0);
+  run = evaluateRun(truth, late);
+  ASSERT_EQ(run.scores.size(), 1u);
+  EXPECT_FALSE(run.scores[0].evaluation);
+  EXPECT_NE(run.scores[0].problem.find("only 0 of"), std::string::npos) << run.scores[0].problem;
+  EXPECT_EQ(run.table, -1);
+}
+
+TEST(LinkTiming, DriftLatencyAndJitterOfASimulatedLink) {
+  // A board frame every 33.333 ms; the host clock runs 1.5 ms/s fast (the thesis's Time1 ->
+  // Time2 drift), is 7.2 s ahead, and each frame takes 2..4 ms (uniform) to arrive. Frames 100
+  // and 200 are lost.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> delay(0.002, 0.004);
+  std::vector<LinkClockSample> s;
+  for (int i = 0; i < 900; ++i) {
+    if (i == 100 || i == 200) continue;
+    const double sent = 12.0 + i / 30.0;
+    s.push_back({sent, 7.2 + sent * 1.0015 + delay(rng)});
+  }
+  const LinkTiming l = summariseLinkTiming("TrackDRV -> TrackHost (Time1 -> Time2)", s);
+  EXPECT_EQ(l.frames, 898u);
+  EXPECT_EQ(l.gaps, 2u);
+  EXPECT_NEAR(l.sender_period_ms, 1000.0 / 30.0, 1e-6);
+  EXPECT_NEAR(l.drift_ms_per_s, 1.5, 0.02);
+  // Above the fastest frame: uniform over 0..2 ms -> mean 1, sd 2 / sqrt(12), p95 1.9, max 2.
+  // Tolerances: a few standard errors of 898 draws (sd of the mean 0.02 ms).
+  EXPECT_NEAR(l.latency_mean_ms, 1.0, 0.08);
+  EXPECT_NEAR(l.jitter_ms, 2.0 / std::sqrt(12.0), 0.04);
+  EXPECT_NEAR(l.latency_p95_ms, 1.9, 0.1);
+  EXPECT_NEAR(l.latency_max_ms, 2.0, 0.1);
+  EXPECT_NE(formatLinkTiming({l}).find("TrackDRV -> TrackHost"), std::string::npos);
+  EXPECT_EQ(summariseLinkTiming("x", {{0, 1}, {1, 2}}).frames, 2u);
+  EXPECT_NE(formatLinkTiming({summariseLinkTiming("x", {})}).find("too few"), std::string::npos);
+}

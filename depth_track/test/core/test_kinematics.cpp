@@ -89,3 +89,116 @@ TEST(Kinematics, BadInputIsNamed) {
   g.camera_offset_m.x() = std::numeric_limits<double>::quiet_NaN();
   EXPECT_EQ(g.validate().size(), 2u);
 }
+
+// ---- sensor references -------------------------------------------------------------------------
+
+namespace {
+
+// A ServoTrack run in closed form: carriage at 42 mm/s, pitch 20 deg at 1/12.6 Hz (RT3), yaw a
+// slower 5 deg sine; sensors sampled at 30 Hz from t0, the camera 11 ms out of phase.
+constexpr double kSpeed = 0.042, kPitchAmp = 20.0, kPitchW = 2 * M_PI / 12.6, kYawAmp = 5.0,
+                 kYawW = 2 * M_PI / 25.0;
+double trackPos(double t) { return 0.1 + kSpeed * t; }
+double pitchDeg(double t) { return kPitchAmp * std::sin(kPitchW * t); }
+double yawDeg(double t) { return kYawAmp * std::sin(kYawW * t); }
+
+RigSensorStreams servoTrackStreams(double t0, double t1, double delay_s = 0.0) {
+  RigSensorStreams s;
+  for (double t = t0; t <= t1 + 1e-9; t += 1.0 / 30.0) {
+    // A reading of instant t reaches the host delay_s later.
+    s.track.push_back({t + delay_s, trackPos(t)});
+    s.gimbal.push_back({t + delay_s, pitchDeg(t), yawDeg(t)});
+  }
+  return s;
+}
+
+}  // namespace
+
+TEST(SensorReference, ServoTrackInterpolatesBetweenReadings) {
+  const RigSensorStreams s = servoTrackStreams(0.0, 10.0);
+  std::vector<double> stamps;
+  for (int i = 0; i < 320; ++i) stamps.push_back(-0.2 + 0.011 + i / 30.0);  // a few outside
+  const RigGeometry g;
+  const Trajectory ref = sensorTrajectory(s, stamps, g);
+  // Stamps before the first or after the last reading get no pose; the rest keep their stamps.
+  std::size_t inside = 0;
+  for (const double t : stamps) inside += t >= 0.0 && t <= 10.0;
+  ASSERT_EQ(ref.size(), inside);
+  // Linear interpolation of a sine errs by at most A w^2 dt^2 / 8 (pitch 6.9e-4 deg, yaw
+  // 4.4e-5 deg); the carriage moves linearly (exact). Tolerance: the sum of both bounds on the
+  // angle, and what it moves the optical centre (0.054 m from the pitch axis).
+  const double dt = 1.0 / 30.0;
+  const double bound_deg =
+      kPitchAmp * kPitchW * kPitchW * dt * dt / 8.0 + kYawAmp * kYawW * kYawW * dt * dt / 8.0;
+  for (const StampedPose& p : ref) {
+    const Eigen::Isometry3d T = cameraPoseOnTrack(trackPos(p.stamp_s), pitchDeg(p.stamp_s) * kDeg,
+                                                  yawDeg(p.stamp_s) * kDeg, g.track);
+    const double ang = Eigen::AngleAxisd(T.rotation().transpose() * p.T_W_C.rotation()).angle();
+    EXPECT_LE(ang, bound_deg * kDeg + 1e-12) << p.stamp_s;
+    EXPECT_LE((T.translation() - p.T_W_C.translation()).norm(), 0.06 * bound_deg * kDeg + 1e-12);
+  }
+  // A shift reads the sensors shift_s after each frame.
+  const Trajectory shifted = sensorTrajectory(s, {2.0, 3.0}, g, 0.1);
+  ASSERT_EQ(shifted.size(), 2u);
+  EXPECT_DOUBLE_EQ(shifted[0].stamp_s, 2.0);
+  EXPECT_LT((shifted[0].T_W_C.matrix() - sensorTrajectory(s, {2.1}, g)[0].T_W_C.matrix()).norm(),
+            1e-12);
+  EXPECT_NEAR(s.samplePeriod(), dt, 1e-9);
+  EXPECT_EQ(s.describe(), "track_state + carriage_sensors");
+}
+
+TEST(SensorReference, TruckDeadReckoningFollowsTheBicycle) {
+  RigGeometry g;
+  g.truck.T_B_C.translation() = Eigen::Vector3d(0.12, 0.0, 0.35);
+  g.truck.T_B_C.linear() = rotationBodyFromOptical();
+  // Full left lock at a steady 0.35 m/s, demands settled from the start: the rear axle runs on a
+  // circle of radius L / tan(30 deg) = 0.554 m counter-clockwise from (0, 0) heading +x.
+  RigSensorStreams s;
+  for (int i = 0; i <= 300; ++i) s.truck.push_back({5.0 + i / 30.0, 0.35, -1.0});
+  const double R = g.truck.wheelbase_m / std::tan(g.truck.max_steer_deg * kDeg);
+  const Trajectory ref = sensorTrajectory(s, {5.0, 7.5, 10.0, 15.0, 15.5}, g);
+  ASSERT_EQ(ref.size(), 4u);  // 15.5 s is after the last reading
+  for (const StampedPose& p : ref) {
+    const double heading = 0.35 * (p.stamp_s - 5.0) / R;
+    const Eigen::Vector3d axle(R * std::sin(heading), R * (1.0 - std::cos(heading)), 0.0);
+    const Eigen::Isometry3d T_W_B =
+        Eigen::Translation3d(axle) * Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ());
+    const Eigen::Isometry3d expected = T_W_B * g.truck.T_B_C;
+    // Midpoint steps of 1 ms on a circle of 0.55 m: errors far below a micrometre.
+    EXPECT_LT((expected.translation() - p.T_W_C.translation()).norm(), 1e-6) << p.stamp_s;
+    EXPECT_LT(Eigen::AngleAxisd(expected.rotation().transpose() * p.T_W_C.rotation()).angle(),
+              1e-6);
+  }
+  // A speed step from rest through the drive's first-order lag: straight ahead, distance
+  // v (T - tau (1 - exp(-T / tau))).
+  RigSensorStreams step;
+  step.truck.push_back({0.0, 0.0, 0.0});
+  for (int i = 1; i <= 90; ++i) step.truck.push_back({i / 30.0, 0.5, 0.0});
+  const double T = 3.0 - 1.0 / 30.0, tau = g.truck.speed_lag_s;
+  const Trajectory st = sensorTrajectory(step, {1.0 / 30.0, 3.0}, g);
+  ASSERT_EQ(st.size(), 2u);
+  const double travelled = (st[1].T_W_C.translation() - st[0].T_W_C.translation()).x();
+  EXPECT_NEAR(travelled, 0.5 * (T - tau * (1.0 - std::exp(-T / tau))), 1e-6);
+  EXPECT_NEAR((st[1].T_W_C.translation() - st[0].T_W_C.translation()).y(), 0.0, 1e-12);
+  EXPECT_EQ(step.describe(), "truck_rc");
+}
+
+TEST(SensorReference, BadStreamsAreNamed) {
+  RigSensorStreams s = servoTrackStreams(0.0, 1.0);
+  std::swap(s.gimbal[3], s.gimbal[4]);
+  try {
+    sensorTrajectory(s, {0.5}, RigGeometry{});
+    FAIL() << "unordered stream accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("carriage_sensors sample 4"), std::string::npos)
+        << e.what();
+  }
+  EXPECT_THROW(sensorTrajectory(RigSensorStreams{}, {0.5}, RigGeometry{}), std::invalid_argument);
+  RigSensorStreams truck;
+  truck.truck.push_back({0.0, std::numeric_limits<double>::quiet_NaN(), 0.0});
+  EXPECT_THROW(sensorTrajectory(truck, {0.0}, RigGeometry{}), std::invalid_argument);
+  TruckGeometry tg;
+  tg.wheelbase_m = 0.0;
+  tg.max_steer_deg = 95.0;
+  EXPECT_EQ(tg.validate().size(), 2u);
+}
