@@ -19,15 +19,11 @@
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "tracking_options.hpp"
 
 using namespace depth_track;
 
 namespace {
-
-std::string dashed(std::string s) {
-  std::replace(s.begin(), s.end(), '_', '-');
-  return s;
-}
 
 // A sequence of depth frames with stamps, from files or the renderer.
 class FrameSource {
@@ -79,21 +75,6 @@ class RenderSource : public FrameSource {
   std::uint64_t seed_;
 };
 
-Eigen::Isometry3d parsePose(const std::string& text) {
-  std::istringstream in(text);
-  double v[7];
-  for (double& x : v)
-    if (!(in >> x))
-      throw std::invalid_argument("--initial-pose needs 7 numbers: tx ty tz qx qy qz qw");
-  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
-  if (!(q.norm() > 0.5))
-    throw std::invalid_argument("--initial-pose quaternion is not a unit quaternion");
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = q.normalized().toRotationMatrix();
-  T.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  return T;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -101,11 +82,9 @@ int main(int argc, char** argv) {
       "Track a depth sequence with the depth_track core and write the camera trajectory (TUM "
       "format, camera-to-world). Input: a TUM-layout folder (--tum) or a rendered run "
       "(--render)."};
-  std::string tum_dir, render_name, noise_name = "l515", out_path, gt_out_path, config_path,
-                                    status_path, initial_pose;
-  double fx = 0, fy = 0, cx = 0, cy = 0, depth_scale = 0.0002;
-  DepthRange range;
-  int max_frames = 0, threads = 1;
+  std::string tum_dir, render_name, noise_name = "l515", out_path, gt_out_path, status_path;
+  double depth_scale = 0.0002;
+  int max_frames = 0;
   std::uint64_t seed = 1;
   bool verbose = false;
 
@@ -113,74 +92,25 @@ int main(int argc, char** argv) {
   auto* render_opt =
       app.add_option("--render", render_name, "rendered run name (e.g. xtest1_05_chair, rt3)");
   tum_opt->excludes(render_opt);
-  app.add_option("--fx", fx, "focal length x, px (--tum)");
-  app.add_option("--fy", fy, "focal length y, px (--tum)");
-  app.add_option("--cx", cx, "principal point x, px (--tum)");
-  app.add_option("--cy", cy, "principal point y, px (--tum)");
+  tool_options::IntrinsicsOptions intrinsics;
+  tool_options::addIntrinsicsOptions(app, intrinsics, "--tum");
   app.add_option("--depth-scale", depth_scale,
                  "metres per 16-bit depth unit (TUM: 0.0002 = 1/5000; RealSense: 0.001)")
       ->capture_default_str();
-  std::string depth_correction_path;
-  app.add_option("--depth-correction", depth_correction_path,
-                 "camera_check YAML whose depth_correction (scale, offset_m) is applied to every "
-                 "frame: z = (z - offset_m) / scale");
-  app.add_option("--d-min", range.min_m, "nearest valid depth, m")->capture_default_str();
-  app.add_option("--d-max", range.max_m, "farthest valid depth, m")->capture_default_str();
   app.add_option("--noise", noise_name, "rendered noise model: l515 | d435 | none")
       ->capture_default_str();
   app.add_option("--seed", seed, "noise seed (rendered runs)")->capture_default_str();
   app.add_option("--frames", max_frames, "process at most this many frames (0 = all)");
-  app.add_option("--threads", threads, "worker threads for prefilter and PCA (1 = one core)")
-      ->capture_default_str();
-  app.add_option("--config", config_path,
-                 "YAML file of tracker parameters (see config/tracker.yaml)");
-  app.add_option("--initial-pose", initial_pose,
-                 "first pose 'tx ty tz qx qy qz qw' (default identity)");
   app.add_option("--out", out_path, "write the tracked trajectory here (TUM format)");
   app.add_option("--gt-out", gt_out_path, "write the true trajectory here (--render only)");
   app.add_option("--status-out", status_path, "per-frame status as CSV");
   app.add_flag("--verbose", verbose, "print one line per frame");
-  // Mapping (issue 3): any of --map, --loop-closure on, --fuse-poses builds the map.
-  std::string map_path, loop_closure = "off", fuse_poses, carving = "on";
-  int cl_step = LoopClosureConfig{}.cl_step;
-  double voxel_size = MapConfig{}.voxel_size_m;
-  app.add_option("--map", map_path, "fuse the frames into a voxel map and save it here (.bt)");
-  app.add_option("--loop-closure", loop_closure, "correct the pose against the map: on | off")
-      ->check(CLI::IsMember({"on", "off"}))
-      ->capture_default_str();
-  app.add_option("--cl-step", cl_step, "loop-closure attempt every n-th frame (CLStep)")
-      ->capture_default_str();
-  int cl_downsample = LoopClosureConfig{}.raycast_downsample;
-  app.add_option("--cl-downsample", cl_downsample,
-                 "loop closure ray-casts the virtual image at 1/n resolution: 1 | 2")
-      ->check(CLI::IsMember({1, 2}))
-      ->capture_default_str();
+  std::string fuse_poses;
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
-  app.add_option("--voxel-size", voxel_size, "map voxel edge, m")->capture_default_str();
-  double occupancy_threshold = MapConfig{}.occupancy_threshold;
-  app.add_option("--occupancy-threshold", occupancy_threshold,
-                 "probability above which a map voxel counts as occupied")
-      ->capture_default_str();
-  std::string map_region = "4x3x4";
-  app.add_option("--map-region", map_region,
-                 "map region around the start camera, WxHxD metres (camera at the middle of the "
-                 "back face, looking in), or 'unbounded' for a run that looks all around")
-      ->capture_default_str();
-  app.add_option("--carving", carving,
-                 "carve free space along rays (probabilistic model): on | off")
-      ->check(CLI::IsMember({"on", "off"}))
-      ->capture_default_str();
-
-  // Every tracker parameter, declared once in tracker_params.
-  TrackerConfig config;
-  std::map<std::string, std::string> values;
-  std::map<std::string, CLI::Option*> param_opts;
-  for (const ParamSpec& p : trackerParams()) {
-    std::string help = p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
-    param_opts[p.name] =
-        app.add_option("--" + dashed(p.name), values[p.name], help)->default_str(p.get(config));
-  }
+  // Tracker and map options, shared with evaluate_bag.
+  tool_options::TrackingOptions options;
+  tool_options::addTrackingOptions(app, options);
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -194,25 +124,16 @@ int main(int argc, char** argv) {
       throw std::invalid_argument("--depth-scale is metres per unit; " +
                                   std::to_string(depth_scale) +
                                   " looks like units per metre (TUM: 0.0002 = 1/5000)");
-    const DepthCorrection correction = depth_correction_path.empty()
-                                           ? DepthCorrection{}
-                                           : loadDepthCorrectionYaml(depth_correction_path);
-    if (!config_path.empty()) loadTrackerParamsYaml(config_path, config);
-    for (const auto& [name, opt] : param_opts)
-      if (opt->count() > 0) setTrackerParam(config, name, values[name]);
-    config.threads = threads;
-    const auto range_problems = range.validate();
-    if (!range_problems.empty()) throw std::invalid_argument(joinProblems(range_problems));
+    const DepthCorrection correction = options.depthCorrection();
+    const TrackerConfig config = options.trackerConfig();
+    const DepthRange range = options.depthRange();
 
     std::unique_ptr<FrameSource> source;
     const RenderSource* rendered = nullptr;
     if (!tum_dir.empty()) {
-      if (fx <= 0 || fy <= 0)
+      if (!intrinsics.given())
         throw std::invalid_argument("--tum needs the intrinsics --fx --fy --cx --cy");
-      PinholeIntrinsics k;
-      k.width = k.height = 0;
-      k.fx = fx, k.fy = fy, k.cx = cx, k.cy = cy;
-      source = std::make_unique<TumSource>(tum_dir, k, depth_scale, range);
+      source = std::make_unique<TumSource>(tum_dir, intrinsics.intrinsics(), depth_scale, range);
     } else {
       auto r = std::make_unique<RenderSource>(
           render_name, sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name)), seed);
@@ -220,33 +141,13 @@ int main(int argc, char** argv) {
       source = std::move(r);
     }
     const PinholeIntrinsics& K = source->intrinsics();
-    Tracker tracker(K, config,
-                    initial_pose.empty() ? Eigen::Isometry3d::Identity() : parsePose(initial_pose));
+    Tracker tracker(K, config, options.startPose());
 
     std::unique_ptr<Mapper> mapper;
     Trajectory fuse_traj;
-    if (!map_path.empty() || loop_closure == "on" || !fuse_poses.empty()) {
-      MapperConfig mc;
-      mc.map.voxel_size_m = voxel_size;
-      mc.map.model = carving == "on" ? UpdateModel::kProbabilistic : UpdateModel::kHitOnly;
-      mc.map.occupancy_threshold = occupancy_threshold;
-      if (map_region == "unbounded") {
-        mc.map.bounded = false;
-      } else {
-        double rw = 0, rh = 0, rd = 0;
-        char x1 = 0, x2 = 0;
-        std::istringstream in(map_region);
-        if (!(in >> rw >> x1 >> rh >> x2 >> rd) || x1 != 'x' || x2 != 'x' || !in.eof() ||
-            !(rw > 0 && rh > 0 && rd > 0))
-          throw std::invalid_argument("--map-region '" + map_region +
-                                      "': expected WxHxD in metres (e.g. 4x3x4) or unbounded");
-        mc.map.region_size_m = Eigen::Vector3d(rw, rh, rd);
-        mc.map.start_in_region_m = Eigen::Vector3d(rw / 2, rh / 2, 0.0);
-      }
-      mc.loop.enabled = loop_closure == "on" && fuse_poses.empty();
-      mc.loop.cl_step = cl_step;
-      mc.loop.raycast_downsample = cl_downsample;
-      mc.range = range;
+    if (options.mapWanted() || !fuse_poses.empty()) {
+      MapperConfig mc = options.mapperConfig();
+      mc.loop.enabled = mc.loop.enabled && fuse_poses.empty();
       if (!fuse_poses.empty()) {
         fuse_traj = readTumTrajectory(fuse_poses);
         if (fuse_traj.empty())
@@ -368,7 +269,7 @@ int main(int argc, char** argv) {
         config.pca.cell_size, cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
         cells.stats.pruned_edge, cells.stats.pruned_degenerate);
     if (mapper) {
-      if (!map_path.empty()) mapper->save(map_path);
+      if (!options.map_path.empty()) mapper->save(options.map_path);
       const VoxelMap& vm = mapper->map();
       const double occ = static_cast<double>(std::max<std::size_t>(1, vm.occupiedCount()));
       // The OcTree holds what was flushed (all of it once saved).
@@ -377,7 +278,8 @@ int main(int argc, char** argv) {
           "occupied voxel) octree_MB=%.1f (%.1f B per occupied voxel)%s\n",
           vm.config().voxel_size_m, vm.occupiedCount(), vm.observedCount(), vm.blockCount(),
           vm.memoryBytes() / 1e6, vm.memoryBytes() / occ, vm.octreeMemoryBytes() / 1e6,
-          vm.octreeMemoryBytes() / occ, map_path.empty() ? " (octree not flushed: no --map)" : "");
+          vm.octreeMemoryBytes() / occ,
+          options.map_path.empty() ? " (octree not flushed: no --map)" : "");
     }
     std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked, ms.median(),
                 ms.p95(), mapper ? (" " + mapper->summary()).c_str() : "");

@@ -7,8 +7,9 @@
 //                     [--compression lz4|bz2|none] [--max-frames N] [--threads N]
 //
 // Topics (stamps = simulated time from a fixed epoch, monotonic per topic):
-//   /camera/image_rect            sensor_msgs/Image 16UC1, frame camera_depth_optical_frame
-//   /camera/camera_info           sensor_msgs/CameraInfo
+//   /camera/image_rect            sensor_msgs/Image 16UC1, frame camera_depth_optical_frame; the
+//                                 connection header's depth_scale_m is the unit (L515 0.00025 m)
+//   /camera/camera_info           sensor_msgs/CameraInfo (same depth_scale_m)
 //   /rig_sim/camera_pose          geometry_msgs/PoseStamped, ground truth T_map_camera (optical)
 //   /tf                           map -> camera_gt (ground truth, optical frame) per exposure
 //   /tf_static                    base_link -> camera_link -> camera_depth_optical_frame (latched)
@@ -25,8 +26,10 @@
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <iostream>
+#include <map>
 
 #include "depth_track/core/sim/noise.hpp"
 #include "depth_track/core/sim/render.hpp"
@@ -102,6 +105,19 @@ dsim::Scene sceneByName(const std::string& name) {
   throw std::invalid_argument("unknown scene '" + name + "'");
 }
 
+/// A connection header for topic `M` with extra fields. A custom header replaces rosbag's own, so
+/// it carries the message's type fields too.
+template <class M>
+boost::shared_ptr<ros::M_string> connectionHeader(const std::map<std::string, std::string>& extra) {
+  auto hdr = boost::make_shared<ros::M_string>();
+  (*hdr)["type"] = ros::message_traits::DataType<M>::value();
+  (*hdr)["md5sum"] = ros::message_traits::MD5Sum<M>::value();
+  (*hdr)["message_definition"] = ros::message_traits::Definition<M>::value();
+  (*hdr)["callerid"] = "/make_scenario_bag";
+  for (const auto& [key, value] : extra) (*hdr)[key] = value;
+  return hdr;
+}
+
 sensor_msgs::CameraInfo cameraInfo(const depth_track::PinholeIntrinsics& K) {
   sensor_msgs::CameraInfo ci;
   ci.header.frame_id = kOpticalFrame;
@@ -158,17 +174,15 @@ int run(int argc, char** argv) {
   {
     tf2_msgs::TFMessage st;
     st.transforms = conv::rigStaticTransforms(sim, kEpoch, kOpticalFrame);
-    // A custom connection header replaces rosbag's own: give it the message's type fields too.
-    using Traits = ros::message_traits::DataType<tf2_msgs::TFMessage>;
-    auto hdr = boost::make_shared<ros::M_string>();
-    (*hdr)["type"] = Traits::value();
-    (*hdr)["md5sum"] = ros::message_traits::MD5Sum<tf2_msgs::TFMessage>::value();
-    (*hdr)["message_definition"] = ros::message_traits::Definition<tf2_msgs::TFMessage>::value();
-    (*hdr)["latching"] = "1";
-    (*hdr)["callerid"] = "/make_scenario_bag";
-    bag.write("/tf_static", kEpoch, st, hdr);
+    bag.write("/tf_static", kEpoch, st, connectionHeader<tf2_msgs::TFMessage>({{"latching", "1"}}));
   }
 
+  // The depth unit travels with the images (connection field depth_scale_m, as tum_to_bag writes
+  // it): L515 raw units are 0.25 mm, not the REP 118 millimetre a reader would otherwise assume.
+  char unit[32];
+  std::snprintf(unit, sizeof(unit), "%.10g", depth_scale);
+  const auto image_hdr = connectionHeader<sensor_msgs::Image>({{"depth_scale_m", unit}});
+  const auto info_hdr = connectionHeader<sensor_msgs::CameraInfo>({{"depth_scale_m", unit}});
   const sensor_msgs::CameraInfo info0 = cameraInfo(K);
   RigTopics rig(bag);
   int frames = 0, image_seq = 0;
@@ -212,11 +226,11 @@ int run(int argc, char** argv) {
       img.step = raw.width * 2;
       img.data.resize(raw.data.size() * 2);
       std::memcpy(img.data.data(), raw.data.data(), img.data.size());
-      bag.write("/camera/image_rect", t, img);
+      bag.write("/camera/image_rect", t, img, image_hdr);
       sensor_msgs::CameraInfo info = info0;
       info.header.stamp = t;
       info.header.seq = image_seq++;
-      bag.write("/camera/camera_info", t, info);
+      bag.write("/camera/camera_info", t, info, info_hdr);
       bag.write("/rig_sim/camera_pose", t, conv::toPoseStamped(t, "map", cf.truth.T_W_C));
       tf2_msgs::TFMessage tf;
       tf.transforms.push_back(conv::toTransformStamped(t, "map", "camera_gt", cf.truth.T_W_C));

@@ -1,0 +1,420 @@
+// evaluate_bag on recorded runs: a short generated RT2 bag (ServoTrack, yaw sine) scored against
+// ground truth and the rig's sensors, checked against the independent checkers; the thesis's
+// latency experiment (sensor stream delayed by 4 frames) found by the scan; every kind of bad
+// input (no depth, no camera_info, stamps going back, an unindexed bag that `rosbag reindex`
+// mends, no sensor topics, no reference at all) named, with what can still be evaluated; and the
+// TUM fr3/teddy sequence through tum_to_bag with its ATE checked by eval_traj.py and its
+// trajectory equal to track_sequence's on the same folder. Runs the tools; no roscore.
+#include <gtest/gtest.h>
+#include <rig_msgs/CarriageSensors.h>
+#include <rig_msgs/TrackState.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/Image.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <regex>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/tum_io.hpp"
+#include "tool_test.hpp"
+
+#if !defined(EVALUATE_BAG) || !defined(MAKE_SCENARIO_BAG) || !defined(TUM_TO_BAG) || \
+    !defined(TRACK_SEQUENCE)
+#error "EVALUATE_BAG, MAKE_SCENARIO_BAG, TUM_TO_BAG and TRACK_SEQUENCE must name the tools"
+#endif
+
+namespace fs = std::filesystem;
+using namespace depth_track;
+using tool_test::TmpDir;
+using tool_test::ToolRun;
+
+namespace {
+
+std::string sharedDir(const std::string& sub) {
+  for (const std::string& d :
+       {std::string(DT_SOURCE_DIR) + "/../../shared/" + sub,
+        std::string(DT_SOURCE_DIR) + "/../../../shared/" + sub, "/work/shared/" + sub})
+    if (fs::exists(d)) return d;
+  ADD_FAILURE() << "shared/" << sub << " not found next to the repository";
+  return "/work/shared/" + sub;
+}
+
+ToolRun evaluate(const std::string& args, const std::string& dir) {
+  return tool_test::runTool(EVALUATE_BAG, args + " --quiet", dir);
+}
+
+// The final line's fields.
+struct Summary {
+  int frames = -1, tracked = -1;
+  std::string ate, deg, mm, median;
+};
+Summary lastLine(const std::string& output) {
+  static const std::regex re(
+      R"(frames=(\d+) tracked=(\d+) ate_rmse_m=(\S+) max_err_deg=(\S+),(\S+),(\S+) )"
+      R"(max_err_mm=(\S+),(\S+),(\S+) median_ms=(\S+)\n?$)");
+  std::smatch m;
+  Summary s;
+  std::string last =
+      output.substr(output.rfind("frames=") == std::string::npos ? 0 : output.rfind("frames="));
+  if (!std::regex_search(last, m, re)) {
+    ADD_FAILURE() << "no final line in:\n" << output;
+    return s;
+  }
+  s.frames = std::stoi(m[1]);
+  s.tracked = std::stoi(m[2]);
+  s.ate = m[3];
+  s.deg = std::string(m[4]) + "," + std::string(m[5]) + "," + std::string(m[6]);
+  s.mm = std::string(m[7]) + "," + std::string(m[8]) + "," + std::string(m[9]);
+  s.median = m[10];
+  return s;
+}
+
+// One python checker's output line.
+std::string checker(const std::string& script, const std::string& est, const std::string& gt,
+                    const std::string& dir) {
+  const ToolRun r = tool_test::runTool("/usr/bin/python3 " + sharedDir("tools") + "/" + script,
+                                       est + " " + gt, dir);
+  EXPECT_EQ(r.rc, 0) << r.output;
+  return r.output;
+}
+
+std::string field(const std::string& line, const std::string& key) {
+  const auto at = line.find(key + "=");
+  if (at == std::string::npos) return "";
+  const auto from = at + key.size() + 1;
+  return line.substr(from, line.find_first_of(" \n", from) - from);
+}
+
+/// Copies a bag message by message; `edit` may rewrite a message (return false to drop it).
+using Edit = std::function<bool(const rosbag::MessageInstance&, rosbag::Bag&)>;
+void copyBag(const std::string& in, const std::string& out, const Edit& edit) {
+  rosbag::Bag src(in, rosbag::bagmode::Read), dst(out, rosbag::bagmode::Write);
+  for (const rosbag::MessageInstance& m : rosbag::View(src))
+    if (!edit || edit(m, dst)) dst.write(m.getTopic(), m.getTime(), m, m.getConnectionHeader());
+  dst.close();
+}
+
+Edit dropTopics(const std::set<std::string>& topics) {
+  return [topics](const rosbag::MessageInstance& m, rosbag::Bag&) {
+    return !topics.count(m.getTopic());
+  };
+}
+
+// A short generated ServoTrack run shared by the tests: RT2 (95 mm/s, yaw 10 deg at 1/12 Hz),
+// its first 60 frames (2 s).
+class EvaluateBag : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    tmp_ = new TmpDir;
+    const ToolRun r =
+        tool_test::runTool(MAKE_SCENARIO_BAG,
+                           std::string("--scenario ") + DT_SCENARIO_DIR + "/RT2.yaml --out-dir " +
+                               tmp_->path + " --max-frames 60 --compression none --threads 2",
+                           tmp_->path);
+    ASSERT_EQ(r.rc, 0) << r.output;
+    bag_ = tmp_->path + "/RT2.bag";
+  }
+  static void TearDownTestSuite() {
+    delete tmp_;
+    tmp_ = nullptr;
+  }
+  static TmpDir* tmp_;
+  static std::string bag_;
+};
+TmpDir* EvaluateBag::tmp_ = nullptr;
+std::string EvaluateBag::bag_;
+
+std::vector<std::string> readLines(const std::string& path) {
+  std::ifstream in(path);
+  std::vector<std::string> out;
+  for (std::string l; std::getline(in, l);) out.push_back(l);
+  return out;
+}
+
+int bestShift(const std::string& output, const std::string& against) {
+  const auto at = output.find("shifted against " + against);
+  if (at == std::string::npos) return 999;
+  const auto b = output.find("best shift ", at);
+  return std::stoi(output.substr(b + 11, output.find(' ', b + 11) - b - 11));
+}
+
+}  // namespace
+
+TEST_F(EvaluateBag, ScoresAgainstGroundTruthAndSensorsAsTheCheckersDo) {
+  TmpDir out;
+  const ToolRun r = evaluate(bag_ + " --out-dir " + out.path + " --plots", out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_EQ(s.frames, 60);
+  EXPECT_EQ(s.tracked, 60);
+  // The unit came from the bag (L515 raw: 0.25 mm), not from a guess.
+  EXPECT_NE(r.output.find("0.00025 m per unit of 16UC1, recorded in the bag"), std::string::npos)
+      << r.output;
+  // The summary uses ground truth, and both references are in the table.
+  EXPECT_NE(r.output.find("* ground truth /rig_sim/camera_pose"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  rig sensors (track_state + carriage_sensors)"), std::string::npos);
+
+  // The independent checkers on the written files print the same numbers (both round the same
+  // way: 4 decimals of metres, 3 of degrees, 2 of millimetres).
+  const std::string est = out.path + "/trajectory.txt",
+                    gt = out.path + "/reference_ground_truth.txt";
+  ASSERT_TRUE(fs::exists(est) && fs::exists(gt));
+  EXPECT_EQ(field(checker("eval_traj.py", est, gt, out.path), "ate_rmse_m"), s.ate);
+  const std::string pe = checker("pose_errors.py", est, gt, out.path);
+  EXPECT_EQ(field(pe, "max_err_deg"), s.deg) << pe;
+  EXPECT_EQ(field(pe, "max_err_mm"), s.mm) << pe;
+  // The L515 defaults on 2 s of RT2: well inside the 0.25 deg / 3 mm chair-run targets.
+  EXPECT_LT(std::stod(s.ate), 0.003);
+
+  // The sensors against ground truth: the yaw pots read 3 % low (table B2) and the ZigBee link
+  // delays them 15-25 ms, so their yaw error is at least the gain error on the yaw travelled
+  // (2 s of a 10 deg sine at 1/12 Hz: 8.7 deg -> 0.26 deg) and at most that plus the lag
+  // (5.2 deg/s * one frame + the link's 25 ms: 0.3 deg) and half an ADC step (10 bits over the
+  // pot's range: ~0.1 deg).
+  const auto at = r.output.find("sensors vs ground truth /rig_sim/camera_pose");
+  ASSERT_NE(at, std::string::npos) << r.output;
+  std::istringstream row(r.output.substr(at + 45));
+  int frames = 0;
+  double tx = 0, ty = 0, tz = 0;
+  row >> frames >> tx >> ty >> tz;
+  EXPECT_GT(ty, 0.2) << r.output.substr(at, 200);
+  EXPECT_LT(ty, 0.7) << r.output.substr(at, 200);
+  // The link's delay is under one frame: the scan against ground truth puts the sensors 0 or 1
+  // frame late, never early.
+  const int lag = bestShift(r.output, "ground truth");
+  EXPECT_TRUE(lag == 0 || lag == 1) << r.output;
+
+  // Per-frame CSV: one row per frame, the thesis's columns for both references.
+  const auto csv = readLines(out.path + "/frames.csv");
+  ASSERT_EQ(csv.size(), 61u);
+  for (const char* col : {"pTx", "pDz", "gt_Ty", "gt_errTy", "sens_Ty", "sens_errDz",
+                          "icp_error_mm", "matches", "fm_matches", "ms_register", "ms_frame"})
+    EXPECT_NE(csv[0].find(col), std::string::npos) << col << " missing in " << csv[0];
+  EXPECT_EQ(readTumTrajectory(est).size(), 60u);
+  for (const char* png :
+       {"tracking.png", "frame_time.png", "matches.png", "latency.png", "map_views.png"})
+    EXPECT_GT(fs::exists(out.path + "/" + png) ? fs::file_size(out.path + "/" + png) : 0u, 20000u)
+        << png;
+  // Link timing: both boards' links summarised; the ZigBee link (15-25 ms) jitters more than the
+  // USB one (2-4 ms).
+  const auto link = [&](const std::string& name) {
+    const auto row = readLines(out.path + "/link_timing.csv");
+    for (const std::string& l : row)
+      if (l.rfind("\"" + name + "\"", 0) == 0) {
+        std::vector<double> v;
+        std::stringstream ss(l.substr(name.size() + 3));
+        for (std::string x; std::getline(ss, x, ',');) v.push_back(std::stod(x));
+        return v;  // frames, periods, sd, drift, latency mean/p95/max, jitter, gaps
+      }
+    ADD_FAILURE() << name << " not in link_timing.csv";
+    return std::vector<double>(10, 0.0);
+  };
+  const auto usb = link("TrackDRV -> TrackHost (Time1 -> Time2)");
+  const auto zigbee = link("CarDRV -> host (Time3 -> receive stamp)");
+  ASSERT_EQ(usb.size(), 10u);
+  ASSERT_EQ(zigbee.size(), 10u);
+  EXPECT_LT(usb[8], 1.0);  // uniform over 2 ms: 0.58 ms
+  EXPECT_GT(zigbee[8], 2.0 * usb[8]);
+  EXPECT_LT(zigbee[6], 12.0);  // p95 above the fastest frame within the 10 ms spread
+}
+
+TEST_F(EvaluateBag, LatencyScanFindsSensorsDelayedByFourFrames) {
+  // Thesis 5.4.1: the sensor data shifted by 4 frames against the camera. Here the rig's streams
+  // are recorded 4 frames (133 ms) late; the scan against the tracked trajectory must find them
+  // 4 frames late plus the link's own fraction of a frame.
+  TmpDir out;
+  const std::string late = out.path + "/late.bag";
+  const ros::Duration d(4.0 / 30.0);
+  copyBag(bag_, late, [&](const rosbag::MessageInstance& m, rosbag::Bag& dst) {
+    if (m.getTopic() == "/track_state") {
+      auto s = m.instantiate<rig_msgs::TrackState>();
+      s->header.stamp += d;
+      dst.write(m.getTopic(), m.getTime() + d, *s);
+      return false;
+    }
+    if (m.getTopic() == "/carriage_sensors") {
+      auto s = m.instantiate<rig_msgs::CarriageSensors>();
+      s->header.stamp += d;
+      dst.write(m.getTopic(), m.getTime() + d, *s);
+      return false;
+    }
+    return true;
+  });
+  const ToolRun r = evaluate(late + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const int k = bestShift(r.output, "the tracked trajectory");
+  EXPECT_TRUE(k == 4 || k == 5) << r.output;
+  EXPECT_EQ(bestShift(r.output, "ground truth"), k) << r.output;
+}
+
+TEST_F(EvaluateBag, WithoutDepthTheSensorsAndLinksAreStillEvaluated) {
+  TmpDir out;
+  const std::string b = out.path + "/nodepth.bag";
+  copyBag(bag_, b, dropTopics({"/camera/image_rect"}));
+  const ToolRun r = evaluate(b + " --out-dir " + out.path, out.path);
+  EXPECT_EQ(r.rc, 2) << r.output;
+  EXPECT_NE(r.output.find("depth         MISSING"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("cannot track: the bag has no depth images"), std::string::npos);
+  EXPECT_NE(r.output.find("still evaluated: the rig sensors"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("what could still be evaluated: sensors vs ground truth, link timing"),
+            std::string::npos);
+  EXPECT_EQ(lastLine(r.output).frames, 0);
+}
+
+TEST_F(EvaluateBag, WithoutCameraInfoTheIntrinsicsAreAskedFor) {
+  TmpDir out;
+  const std::string b = out.path + "/noinfo.bag";
+  copyBag(bag_, b, dropTopics({"/camera/camera_info"}));
+  ToolRun r = evaluate(b + " --out-dir " + out.path, out.path);
+  EXPECT_EQ(r.rc, 2) << r.output;
+  EXPECT_NE(r.output.find("camera_info   MISSING"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("give the intrinsics with --fx --fy --cx --cy"), std::string::npos);
+  EXPECT_NE(r.output.find("still evaluated"), std::string::npos);
+  // The scenario camera (l515Intrinsics: 458 px, centred): the run then goes through.
+  r = evaluate(b + " --out-dir " + out.path + " --fx 458 --fy 458 --cx 320 --cy 240", out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  EXPECT_EQ(lastLine(r.output).tracked, 60);
+}
+
+TEST_F(EvaluateBag, StampsGoingBackAreSkippedAndSaid) {
+  TmpDir out;
+  const std::string b = out.path + "/order.bag";
+  // Frames 10 and 11 carry each other's stamps: frame 11's goes back in time.
+  ros::Time t10, t11;
+  {
+    rosbag::Bag src(bag_, rosbag::bagmode::Read);
+    int i = 0;
+    for (const rosbag::MessageInstance& m :
+         rosbag::View(src, rosbag::TopicQuery("/camera/image_rect"))) {
+      if (i == 10) t10 = m.instantiate<sensor_msgs::Image>()->header.stamp;
+      if (i == 11) t11 = m.instantiate<sensor_msgs::Image>()->header.stamp;
+      ++i;
+    }
+  }
+  copyBag(bag_, b, [&](const rosbag::MessageInstance& m, rosbag::Bag& dst) {
+    if (m.getTopic() != "/camera/image_rect") return true;
+    auto img = m.instantiate<sensor_msgs::Image>();
+    if (img->header.stamp == t10)
+      img->header.stamp = t11;
+    else if (img->header.stamp == t11)
+      img->header.stamp = t10;
+    else
+      return true;
+    dst.write(m.getTopic(), m.getTime(), *img, m.getConnectionHeader());
+    return false;
+  });
+  const ToolRun r = evaluate(b + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  EXPECT_NE(r.output.find("1 frames skipped because their stamps go back in time (first: "
+                          "message 11 of /camera/image_rect"),
+            std::string::npos)
+      << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_EQ(s.frames, 59);
+  EXPECT_NE(s.ate, "nan");
+}
+
+TEST_F(EvaluateBag, UnindexedBagIsNamedAndReindexMendsIt) {
+  // What a killed `rosbag record` leaves: chunks without the index (the file header's index
+  // position still 0) and a last chunk cut short.
+  TmpDir out;
+  const std::string b = out.path + "/crashed.bag";
+  {
+    std::ifstream in(bag_, std::ios::binary);
+    std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto at = data.find("index_pos=");
+    ASSERT_NE(at, std::string::npos);
+    std::uint64_t index_pos = 0;
+    std::memcpy(&index_pos, data.data() + at + 10, 8);
+    ASSERT_GT(index_pos, 0u);
+    std::memset(&data[at + 10], 0, 8);
+    data.resize(index_pos * 6 / 10);  // inside the chunks: the last one is cut
+    std::ofstream(b, std::ios::binary).write(data.data(), data.size());
+  }
+  ToolRun r = evaluate(b + " --out-dir " + out.path, out.path);
+  EXPECT_EQ(r.rc, 2) << r.output;
+  EXPECT_NE(r.output.find("the bag is not indexed"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("`rosbag reindex " + b + "` mends it"), std::string::npos) << r.output;
+  EXPECT_EQ(lastLine(r.output).frames, 0);
+  // The advice works: the complete chunks come back and are evaluated.
+  const ToolRun fix = tool_test::runTool("/usr/bin/rosbag", "reindex " + b, out.path);
+  ASSERT_EQ(fix.rc, 0) << fix.output;
+  r = evaluate(b + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_GT(s.frames, 10);
+  EXPECT_LT(s.frames, 60);
+  EXPECT_EQ(s.tracked, s.frames);
+}
+
+TEST_F(EvaluateBag, WithoutSensorsGroundTruthAloneIsUsedAndSaid) {
+  TmpDir out;
+  const std::string b = out.path + "/nosensors.bag";
+  copyBag(bag_, b, dropTopics({"/track_state", "/carriage_sensors", "/link_timing"}));
+  ToolRun r = evaluate(b + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  EXPECT_NE(r.output.find("sensors       MISSING"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no sensor reference"), std::string::npos);
+  EXPECT_NE(r.output.find("* ground truth /rig_sim/camera_pose"), std::string::npos);
+  EXPECT_EQ(r.output.find("rig sensors ("), std::string::npos);
+  EXPECT_NE(r.output.find("no latency scan: it needs the rig's sensor topics"), std::string::npos);
+  EXPECT_NE(lastLine(r.output).ate, "nan");
+  // No reference at all: the trajectory is still written, the table says why it is empty.
+  const std::string bare = out.path + "/bare.bag";
+  copyBag(b, bare, dropTopics({"/rig_sim/camera_pose"}));
+  r = evaluate(bare + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  EXPECT_NE(r.output.find("note: no ground truth"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("note: no rig sensor topics"), std::string::npos) << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_EQ(s.tracked, 60);
+  EXPECT_EQ(s.ate, "nan");
+  EXPECT_EQ(readTumTrajectory(out.path + "/trajectory.txt").size(), 60u);
+}
+
+TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
+  TmpDir out;
+  const std::string teddy = sharedDir("data/tum_fr3_teddy");
+  const std::string bag = out.path + "/teddy.bag";
+  ToolRun r = tool_test::runTool(TUM_TO_BAG, teddy + " " + bag + " --camera fr3", out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const std::string preset = std::string(DT_SOURCE_DIR) + "/../config/tum_kinect.yaml";
+  r = evaluate(bag + " --out-dir " + out.path + " --config " + preset, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  EXPECT_NE(r.output.find("* ground truth /ground_truth/camera_pose"), std::string::npos)
+      << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_EQ(s.frames, 200);
+  // eval_traj.py against the sequence's own groundtruth.txt (not the bag's copy).
+  const std::string check =
+      checker("eval_traj.py", out.path + "/trajectory.txt", teddy + "/groundtruth.txt", out.path);
+  EXPECT_EQ(field(check, "ate_rmse_m"), s.ate) << check;
+  EXPECT_EQ(field(check, "frames"), "196") << check;  // frames with motion capture
+  // The README's figure for this preset: 0.056 m (P2L); a tracker gone wrong scores >= 0.2 m.
+  EXPECT_LT(std::stod(s.ate), 0.08);
+  // Same core objects as track_sequence: the same trajectory from the same frames.
+  const std::string ts = out.path + "/ts.txt";
+  r = tool_test::runTool(TRACK_SEQUENCE,
+                         "--tum " + teddy +
+                             " --fx 535.4 --fy 539.2 --cx 320.1 --cy 247.6 --config " + preset +
+                             " --out " + ts,
+                         out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const Trajectory a = readTumTrajectory(out.path + "/trajectory.txt"), b = readTumTrajectory(ts);
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_NEAR(a[i].stamp_s, b[i].stamp_s, 1e-6);
+    // Files carry 6 decimals of metres and 9 of the quaternion.
+    EXPECT_LT((a[i].T_W_C.translation() - b[i].T_W_C.translation()).norm(), 2e-6) << i;
+    EXPECT_LT((a[i].T_W_C.linear() - b[i].T_W_C.linear()).norm(), 1e-7) << i;
+  }
+}
