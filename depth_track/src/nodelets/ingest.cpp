@@ -12,6 +12,7 @@
 
 #include <memory>
 
+#include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/prefilter_stage.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/worker_pool.hpp"
@@ -47,6 +48,14 @@ class IngestNodelet : public nodelet::Nodelet {
     const int threads = r.getInt("threads");
     const int replay_queue = r.getInt("replay_queue");
     const std::string transport = r.getString("image_transport");
+    const std::string correction_file = r.getString("depth_correction");
+    if (!correction_file.empty()) {
+      try {
+        correction_ = loadDepthCorrectionYaml(correction_file);
+      } catch (const std::invalid_argument& e) {
+        r.problem(pnh.resolveName("depth_correction") + ": " + e.what());
+      }
+    }
     for (const auto& p : range_.validate()) r.problem(pnh.resolveName("d_min") + "/d_max: " + p);
     config_ =
         r.table<TrackerConfig>(ros::NodeHandle(nh, "tracker"), trackerParams(), TrackerConfig{},
@@ -144,6 +153,7 @@ class IngestNodelet : public nodelet::Nodelet {
         K_ = K;
       }
       DepthImage depth = conv::depthFromMsg(*f.image, depth_scale_m_, range_);
+      applyDepthCorrection(depth, correction_);
       // A covered lens or a view beyond range is a frame, not bad input: the tracker flags it
       // LOST (its status says why) and relocalises when the view returns.
       if (depth.countValid() == 0)
@@ -162,6 +172,7 @@ class IngestNodelet : public nodelet::Nodelet {
 
   double depth_scale_m_ = 0.001, band_m_ = 0.05;
   DepthRange range_;
+  DepthCorrection correction_;  ///< camera_check's measured depth response (identity = none)
   TrackerConfig config_;
   std::shared_ptr<WorkerPool> pool_;
   std::shared_ptr<GraphContext> ctx_;

@@ -58,6 +58,10 @@ std::vector<NodeParamSpec> makeParams() {
       num("ingest", "d_min", "m", "nearer depths are no return", DepthRange{}.min_m, 0.0, 100.0));
   p.push_back(
       num("ingest", "d_max", "m", "farther depths are no return", DepthRange{}.max_m, 0.01, 100.0));
+  p.push_back(text("ingest", "depth_correction",
+                   "camera_check YAML whose depth_correction (scale, offset_m) corrects every "
+                   "frame, z = (z - offset_m) / scale; empty = none",
+                   ""));
   p.push_back(num("ingest", "false_colour_band", "m",
                   "depth per colour band of the false-colour image (thesis: 50 mm)", 0.05, 1e-3,
                   10.0));
