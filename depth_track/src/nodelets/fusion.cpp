@@ -27,17 +27,10 @@ namespace graph {
 
 class FusionNodelet : public nodelet::Nodelet {
  public:
-  ~FusionNodelet() override {
-    if (queue_) queue_->stop();
-  }
+  ~FusionNodelet() override { input_.stop(); }
 
  private:
-  struct Frame {
-    sensor_msgs::ImageConstPtr image;
-    sensor_msgs::CameraInfoConstPtr info;
-    rig_msgs::TrackingStatusConstPtr status;
-  };
-  using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;
+  using Frame = TrackedFrame;
 
   void onInit() override {
     ros::NodeHandle& nh = getNodeHandle();
@@ -49,22 +42,14 @@ class FusionNodelet : public nodelet::Nodelet {
     publish_period_s_ = r.getDouble("publish_period");
     const int sync_queue = r.getInt("sync_queue");
     map_path_ = r.getString("map_path");
-    PinholeIntrinsics nominal{640, 480, 500, 500, 319.5, 239.5};
-    config_ =
-        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
-                              [nominal](const MapperConfig& c) { return c.validate(nominal); });
+    config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
-    pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
     voxels_pub_ = nh.advertise<sensor_msgs::PointCloud2>("map/voxels", 1, true);
     markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>("map/markers", 10, true);
     save_srv_ = pnh.advertiseService("save_map", &FusionNodelet::onSave, this);
     clear_srv_ = pnh.advertiseService("clear_map", &FusionNodelet::onClear, this);
-    queue_ =
-        std::make_unique<FrameQueue<Frame>>(mode_, 100000, [this](const Frame& f) { process(f); });
-    image_transport::ImageTransport it(nh);
-    depth_sub_ = it.subscribeCamera("depth/image", 50, &FusionNodelet::onDepth, this);
-    status_sub_ = nh.subscribe("status", 100, &FusionNodelet::onStatus, this);
+    input_.start(nh, mode_, sync_queue, [this](const Frame& f) { process(f); });
     publish_timer_ = nh.createWallTimer(ros::WallDuration(std::max(publish_period_s_, 0.05)),
                                         [this](const ros::WallTimerEvent&) { publishMap(); });
     NODELET_INFO("fusion: %s, voxel %.4f m, region %s, carving %s",
@@ -73,21 +58,9 @@ class FusionNodelet : public nodelet::Nodelet {
                  config_.map.model == UpdateModel::kProbabilistic ? "on" : "off");
   }
 
-  void onDepth(const sensor_msgs::ImageConstPtr& image,
-               const sensor_msgs::CameraInfoConstPtr& info) {
-    std::lock_guard<std::mutex> lock(pair_mutex_);
-    if (auto p = pairs_->addA(image->header.stamp, {image, info}))
-      queue_->push({p->first.first, p->first.second, p->second});
-  }
-  void onStatus(const rig_msgs::TrackingStatusConstPtr& s) {
-    if (s->input_rejected) return;  // no depth frame of this stamp goes on
-    std::lock_guard<std::mutex> lock(pair_mutex_);
-    if (auto p = pairs_->addB(s->header.stamp, s))
-      queue_->push({p->first.first, p->first.second, p->second});
-  }
-
   void process(const Frame& f) {
     const double stamp = f.image->header.stamp.toSec();
+    if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset: not this map's
     try {
       if (stamp < last_stamp_) {  // time jumped back: the registration resets the map too
         map_changed_ = true;
@@ -239,7 +212,7 @@ class FusionNodelet : public nodelet::Nodelet {
     return true;
   }
   bool onClear(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-    ctx_->map.clear();
+    ctx_->map.clear(ctx_->map.epoch());
     map_changed_ = true;
     res.success = true;
     res.message = "map cleared; the next tracked frame starts a new one";
@@ -252,19 +225,15 @@ class FusionNodelet : public nodelet::Nodelet {
   double publish_period_s_ = 1.0;
   MapperConfig config_;
   std::shared_ptr<GraphContext> ctx_;
-  std::mutex pair_mutex_;
-  std::unique_ptr<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>> pairs_;
   double last_stamp_ = -1.0;
   std::uint64_t fused_ = 0;
   std::atomic<bool> map_changed_{false};
   std::unordered_map<std::int64_t, std::pair<std::size_t, int>> tiles_;  // key -> (voxels, id)
   std::unordered_map<std::int64_t, int> tile_ids_;
-  image_transport::CameraSubscriber depth_sub_;
-  ros::Subscriber status_sub_;
   ros::Publisher voxels_pub_, markers_pub_;
   ros::ServiceServer save_srv_, clear_srv_;
   ros::WallTimer publish_timer_;
-  std::unique_ptr<FrameQueue<Frame>> queue_;
+  TrackedFrameInput input_;
 };
 
 }  // namespace graph

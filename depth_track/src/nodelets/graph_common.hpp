@@ -2,7 +2,11 @@
 // What the tracking graph's nodelets share, ROS side only: the frame queue that gives replay its
 // order and live mode its freshness, the clock/stamp guard, the input watchdog, and the
 // in-process registry through which nodelets of one manager share the map and their counters.
+#include <image_transport/image_transport.h>
+#include <rig_msgs/TrackingStatus.h>
 #include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
 
 #include <Eigen/Geometry>
 #include <atomic>
@@ -22,7 +26,9 @@
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/map/mapper.hpp"
+#include "depth_track/core/map/mapper_params.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/ros/params.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -204,8 +210,10 @@ class MapSession {
     std::shared_lock<std::shared_mutex> lock(map_mutex_);
     return intrinsics_;
   }
-  /// Forgets the map and every correction (reset, clear_map, a jump back in time).
-  void clear() {
+  /// Forgets the map and every correction (reset, clear_map, a jump back in time); frames of
+  /// earlier epochs that are still on their way must be dropped (see current()).
+  void clear(std::uint32_t epoch) {
+    epoch_ = epoch;
     {
       std::unique_lock<std::shared_mutex> lock(map_mutex_);
       map_.reset();
@@ -217,6 +225,10 @@ class MapSession {
     ++generation_;
     cv_.notify_all();
   }
+
+  /// True for frames of the epoch the map belongs to.
+  bool current(std::uint32_t epoch) const { return epoch == epoch_; }
+  std::uint32_t epoch() const { return epoch_; }
 
   // ---- corrections (loop closure -> everyone) ----
   void attachLoopClosure() { loop_attached_ = true; }
@@ -277,10 +289,36 @@ class MapSession {
   double fused_upto_ = -1.0;
   std::uint64_t generation_ = 0;
   std::atomic<bool> loop_attached_{false};
+  std::atomic<std::uint32_t> epoch_{0};
+};
+
+/// Wall times of the front stages per frame stamp, so that the registration's status can report
+/// every stage of the frame (in one manager; separate processes report zeros).
+class StageTimes {
+ public:
+  void setPrefilter(double stamp_s, double ms) { set(stamp_s, 0, ms); }
+  void setReduce(double stamp_s, double ms) { set(stamp_s, 1, ms); }
+  /// (prefilter ms, reduce ms) of the frame, zeros when unknown.
+  std::pair<double, double> get(double stamp_s) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = times_.find(stamp_s);
+    return it == times_.end() ? std::make_pair(0.0, 0.0) : it->second;
+  }
+
+ private:
+  void set(double stamp_s, int which, double ms) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto& t = times_[stamp_s];
+    (which == 0 ? t.first : t.second) = ms;
+    while (times_.size() > 512) times_.erase(times_.begin());
+  }
+  mutable std::mutex mutex_;
+  std::map<double, std::pair<double, double>> times_;
 };
 
 /// Per-graph shared state, keyed by the nodelets' namespace (one graph per namespace).
 struct GraphContext {
+  StageTimes times;
   MapSession map;
   /// Live mode: frames each stage skipped because it was still busy with an older one.
   std::atomic<std::uint64_t> skipped_ingest{0}, skipped_reduce{0}, skipped_registration{0};
@@ -339,6 +377,74 @@ class StampPairer {
   std::deque<std::pair<ros::Time, A>> as_;
   std::deque<std::pair<ros::Time, B>> bs_;
   std::uint64_t dropped_a_ = 0;
+};
+
+/// A status entry for a frame that never reached the tracker: the stage and what was wrong.
+inline rig_msgs::TrackingStatus rejectedStatus(const std_msgs::Header& image_header,
+                                               const std::string& failure) {
+  rig_msgs::TrackingStatus s;
+  s.header = image_header;
+  s.state = rig_msgs::TrackingStatus::LOST;
+  s.state_name = "LOST";
+  s.input_rejected = true;
+  s.failure = failure;
+  s.camera_frame = image_header.frame_id;
+  s.camera_pose.orientation.w = 1.0;
+  return s;
+}
+
+/// The mapper table (under `mapper/` of the graph's namespace), validated for a nominal camera;
+/// the real intrinsics are checked with the first frame.
+inline MapperConfig readMapperTable(rosparams::ParamReader& r, const ros::NodeHandle& nh) {
+  const PinholeIntrinsics nominal{640, 480, 500, 500, 319.5, 239.5};
+  return r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
+                               [nominal](const MapperConfig& c) { return c.validate(nominal); });
+}
+
+/// A depth frame (depth/image + depth/camera_info) with the registration's status of the same
+/// stamp: what the mapping nodelets work on.
+struct TrackedFrame {
+  sensor_msgs::ImageConstPtr image;
+  sensor_msgs::CameraInfoConstPtr info;
+  rig_msgs::TrackingStatusConstPtr status;
+};
+
+/// Subscribes both streams, pairs them by stamp (rejection entries of `status` have no frame
+/// and are skipped) and hands the pairs to `process` on a FrameQueue worker.
+class TrackedFrameInput {
+ public:
+  void start(ros::NodeHandle& nh, Mode mode, std::size_t sync_queue,
+             std::function<void(const TrackedFrame&)> process) {
+    pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
+    queue_ = std::make_unique<FrameQueue<TrackedFrame>>(mode, 100000, std::move(process));
+    image_transport::ImageTransport it(nh);
+    depth_sub_ = it.subscribeCamera("depth/image", 50, &TrackedFrameInput::onDepth, this);
+    status_sub_ = nh.subscribe("status", 100, &TrackedFrameInput::onStatus, this);
+  }
+  void stop() {
+    if (queue_) queue_->stop();
+  }
+  ~TrackedFrameInput() { stop(); }
+
+ private:
+  using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;
+  void onDepth(const sensor_msgs::ImageConstPtr& image,
+               const sensor_msgs::CameraInfoConstPtr& info) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto p = pairs_->addA(image->header.stamp, {image, info}))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+  void onStatus(const rig_msgs::TrackingStatusConstPtr& s) {
+    if (s->input_rejected) return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto p = pairs_->addB(s->header.stamp, s))
+      queue_->push({p->first.first, p->first.second, p->second});
+  }
+  std::mutex mutex_;
+  std::unique_ptr<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>> pairs_;
+  std::unique_ptr<FrameQueue<TrackedFrame>> queue_;
+  image_transport::CameraSubscriber depth_sub_;
+  ros::Subscriber status_sub_;
 };
 
 inline std::shared_ptr<GraphContext> graphContext(const std::string& ns) {

@@ -14,6 +14,7 @@
 
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/prefilter_stage.hpp"
+#include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/worker_pool.hpp"
 #include "depth_track/ros/conversions.hpp"
@@ -109,14 +110,7 @@ class IngestNodelet : public nodelet::Nodelet {
   void reject(const std_msgs::Header& h, const std::string& why) {
     ++rejected_;
     NODELET_ERROR_THROTTLE(1.0, "ingest: frame at %.3f rejected: %s", h.stamp.toSec(), why.c_str());
-    rig_msgs::TrackingStatus s;
-    s.header = h;
-    s.state = rig_msgs::TrackingStatus::LOST;
-    s.state_name = "LOST";
-    s.input_rejected = true;
-    s.failure = "ingest: " + why;
-    s.camera_frame = h.frame_id;
-    s.camera_pose.orientation.w = 1.0;
+    rig_msgs::TrackingStatus s = rejectedStatus(h, "ingest: " + why);
     s.frames_rejected = rejected_;
     status_pub_.publish(s);
   }
@@ -161,7 +155,11 @@ class IngestNodelet : public nodelet::Nodelet {
                               "ingest: frame at %.3f has no valid depth (every pixel 0, NaN, "
                               "Inf or outside %.2f..%.2f m)",
                               h.stamp.toSec(), range_.min_m, range_.max_m);
-      if (!prefilter_->passthrough()) depth = prefilter_->apply(depth);
+      if (!prefilter_->passthrough()) {
+        const auto t0 = std::chrono::steady_clock::now();
+        depth = prefilter_->apply(depth);
+        ctx_->times.setPrefilter(h.stamp.toSec(), msSince(t0));
+      }
       depth_pub_.publish(conv::depthToMsg(depth, h), f.info);
       if (colour_pub_.getNumSubscribers() > 0)
         colour_pub_.publish(conv::falseColourDepth(depth, h, band_m_));

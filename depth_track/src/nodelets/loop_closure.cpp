@@ -25,17 +25,10 @@ namespace graph {
 
 class LoopClosureNodelet : public nodelet::Nodelet {
  public:
-  ~LoopClosureNodelet() override {
-    if (queue_) queue_->stop();
-  }
+  ~LoopClosureNodelet() override { input_.stop(); }
 
  private:
-  struct Frame {
-    sensor_msgs::ImageConstPtr image;
-    sensor_msgs::CameraInfoConstPtr info;
-    rig_msgs::TrackingStatusConstPtr status;
-  };
-  using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;
+  using Frame = TrackedFrame;
 
   void onInit() override {
     ros::NodeHandle& nh = getNodeHandle();
@@ -47,23 +40,15 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     const double tf_rate = r.getDouble("tf_rate");
     const int sync_queue = r.getInt("sync_queue");
     wait_timeout_s_ = r.getDouble("wait_timeout");
-    PinholeIntrinsics nominal{640, 480, 500, 500, 319.5, 239.5};
-    config_ =
-        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
-                              [nominal](const MapperConfig& c) { return c.validate(nominal); });
+    config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
     if (config_.loop.enabled) ctx_->map.attachLoopClosure();
-    pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
     status_pub_ = nh.advertise<rig_msgs::LoopClosureStatus>("loop_closure/status", 20);
     image_transport::ImageTransport it(nh);
     virtual_pub_ = it.advertise("loop_closure/virtual_depth", 1);
-    queue_ =
-        std::make_unique<FrameQueue<Frame>>(mode_, 100000, [this](const Frame& f) { process(f); });
-    if (config_.loop.enabled) {
-      depth_sub_ = it.subscribeCamera("depth/image", 50, &LoopClosureNodelet::onDepth, this);
-      status_sub_ = nh.subscribe("status", 100, &LoopClosureNodelet::onStatus, this);
-    }
+    if (config_.loop.enabled)
+      input_.start(nh, mode_, sync_queue, [this](const Frame& f) { process(f); });
     tf_timer_ = nh.createTimer(ros::Duration(1.0 / tf_rate), [this](const ros::TimerEvent&) {
       const ros::Time now = ros::Time::now();
       if (now <= last_tf_stamp_ && now + ros::Duration(1.0) > last_tf_stamp_) return;  // no news
@@ -80,21 +65,9 @@ class LoopClosureNodelet : public nodelet::Nodelet {
                  odom_frame_.c_str(), tf_rate);
   }
 
-  void onDepth(const sensor_msgs::ImageConstPtr& image,
-               const sensor_msgs::CameraInfoConstPtr& info) {
-    std::lock_guard<std::mutex> lock(pair_mutex_);
-    if (auto p = pairs_->addA(image->header.stamp, {image, info}))
-      queue_->push({p->first.first, p->first.second, p->second});
-  }
-  void onStatus(const rig_msgs::TrackingStatusConstPtr& s) {
-    if (s->input_rejected) return;
-    std::lock_guard<std::mutex> lock(pair_mutex_);
-    if (auto p = pairs_->addB(s->header.stamp, s))
-      queue_->push({p->first.first, p->first.second, p->second});
-  }
-
   void process(const Frame& f) {
     const double stamp = f.image->header.stamp.toSec();
+    if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset
     Eigen::Isometry3d X = ctx_->map.latestCorrection();
     try {
       if (stamp < last_stamp_) {  // time jumped back: the graph was reset
@@ -169,19 +142,15 @@ class LoopClosureNodelet : public nodelet::Nodelet {
   double wait_timeout_s_ = 10.0;
   MapperConfig config_;
   std::shared_ptr<GraphContext> ctx_;
-  std::mutex pair_mutex_;
-  std::unique_ptr<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>> pairs_;
   double last_stamp_ = -1.0;
   std::uint64_t frames_ = 0;
   std::uint32_t attempts_ = 0, accepted_ = 0;
-  image_transport::CameraSubscriber depth_sub_;
-  ros::Subscriber status_sub_;
   ros::Publisher status_pub_;
   image_transport::Publisher virtual_pub_;
   tf2_ros::TransformBroadcaster tf_pub_;
   ros::Timer tf_timer_;
   ros::Time last_tf_stamp_;
-  std::unique_ptr<FrameQueue<Frame>> queue_;
+  TrackedFrameInput input_;
 };
 
 }  // namespace graph

@@ -76,6 +76,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
           reducer_->reduce(depth, h.stamp.toSec(), h.frame_id);
       const double ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      ctx_->times.setReduce(h.stamp.toSec(), ms);
       cells_pub_.publish(conv::cellsToCloud(*cells, h));
       rig_msgs::ReductionStats s;
       s.header = h;
@@ -93,14 +94,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     } catch (const std::exception& e) {
       NODELET_ERROR_THROTTLE(1.0, "pca_reduce: frame at %.3f rejected: %s", h.stamp.toSec(),
                              e.what());
-      rig_msgs::TrackingStatus s;
-      s.header = h;
-      s.state = rig_msgs::TrackingStatus::LOST;
-      s.state_name = "LOST";
-      s.input_rejected = true;
-      s.failure = std::string("pca_reduce: ") + e.what();
-      s.camera_frame = h.frame_id;
-      s.camera_pose.orientation.w = 1.0;
+      rig_msgs::TrackingStatus s = rejectedStatus(h, std::string("pca_reduce: ") + e.what());
       status_pub_.publish(s);
     }
   }

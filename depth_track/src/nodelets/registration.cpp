@@ -50,6 +50,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     ros::NodeHandle& pnh = getPrivateNodeHandle();
     rosparams::ParamReader r(pnh, "registration");
     const Mode mode = parseMode(r.getString("mode"));
+    mode_ = mode;
     odom_frame_ = r.getString("odom_frame");
     base_frame_ = r.getString("base_frame");
     map_frame_ = r.getString("map_frame");
@@ -89,9 +90,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
           return c.validate(PinholeIntrinsics{640, 480, 500, 500, 319.5, 239.5});
         });
     // The ray-cast range of a relocalisation is the mapper's (its virtual images).
-    mapper_config_ =
-        r.table<MapperConfig>(ros::NodeHandle(nh, "mapper"), mapperParams(), MapperConfig{},
-                              [](const MapperConfig& c) { return c.map.validate(); });
+    mapper_config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
 
@@ -138,6 +137,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.header.frame_id = odom_frame_;
     s.camera_frame = h.frame_id;
     s.frame = frames_;
+    s.epoch = epoch_;
     s.camera_pose.orientation.w = 1.0;
     return s;
   }
@@ -150,12 +150,14 @@ class RegistrationNodelet : public nodelet::Nodelet {
     ++rejected_;
     NODELET_ERROR_THROTTLE(1.0, "registration: frame at %.3f rejected: %s", h.stamp.toSec(),
                            why.c_str());
-    rig_msgs::TrackingStatus s = newStatus(h);
-    s.state = odometry_ ? static_cast<std::uint8_t>(odometry_->state())
-                        : static_cast<std::uint8_t>(rig_msgs::TrackingStatus::LOST);
-    s.state_name = odometry_ ? toString(odometry_->state()) : "LOST";
-    s.input_rejected = true;
-    s.failure = "registration: " + why;
+    rig_msgs::TrackingStatus s = rejectedStatus(h, "registration: " + why);
+    s.header.frame_id = odom_frame_;
+    s.frame = frames_;
+    s.epoch = epoch_;
+    if (odometry_) {
+      s.state = static_cast<std::uint8_t>(odometry_->state());
+      s.state_name = toString(odometry_->state());
+    }
     publishStatus(s);
   }
 
@@ -252,6 +254,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
         relocaliser_ = std::make_unique<CellReducer>(K, config_.reducerConfig());
       }
       ++frames_;
+      const double prev_stamp = prev_stamp_;
+      prev_stamp_ = h.stamp.toSec();
       const auto t0 = std::chrono::steady_clock::now();
       const auto guess = prior(h.stamp);
       FrameStatus st = odometry_->track(cells, guess);
@@ -259,7 +263,12 @@ class RegistrationNodelet : public nodelet::Nodelet {
       s.prior_used = guess.has_value();
       if (!st.tracked) {
         ++lost_frames_;
-        if (relocalise_ && lost_frames_ % relocalise_every_ == 0) tryRelocalise(h, &st, &s);
+        if (relocalise_ && lost_frames_ % relocalise_every_ == 0) {
+          const double now_stamp = prev_stamp_;
+          prev_stamp_ = prev_stamp;  // the frame before this one must be in the map
+          tryRelocalise(h, &st, &s);
+          prev_stamp_ = now_stamp;
+        }
       } else {
         lost_frames_ = 0;
       }
@@ -273,6 +282,12 @@ class RegistrationNodelet : public nodelet::Nodelet {
 
   /// Registers the lost frame onto the map ray-cast at the held pose (wider search).
   void tryRelocalise(const std_msgs::Header& h, FrameStatus* st, rig_msgs::TrackingStatus* s) {
+    // Replay: the offline order, the map holds every frame before this one (fusion runs behind).
+    if (mode_ == Mode::kReplay && prev_stamp_ > 0.0 && !ctx_->map.waitFused(prev_stamp_, 10.0))
+      NODELET_WARN(
+          "registration: the map did not catch up with frame %.3f within 10 s; "
+          "relocalising against what it holds",
+          prev_stamp_);
     const Eigen::Isometry3d T_map_odom = ctx_->map.latestCorrection();
     const Eigen::Isometry3d T_odom_C = odometry_->pose();
     DepthImage virt = ctx_->map.read([&](const VoxelMap* map) {
@@ -365,6 +380,9 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.iterations = st.iterations;
     s.error_rms_m = st.error_rms_m;
     s.ms_register = ms_register;
+    const auto front = ctx_->times.get(h.stamp.toSec());
+    s.ms_prefilter = front.first;
+    s.ms_reduce = front.second;
     s.latency_ms = (ros::Time::now() - h.stamp).toSec() * 1e3;
     publishStatus(s);
   }
@@ -378,11 +396,12 @@ class RegistrationNodelet : public nodelet::Nodelet {
       else
         odometry_->reset();
     }
-    if (!T_odom_base) ctx_->map.clear();  // a new start: the map of the old one does not apply
+    if (!T_odom_base) ctx_->map.clear(++epoch_);  // a new start: the old map does not apply
     path_.poses.clear();
     trajectory_.clear();
     frames_ = 0;
     lost_frames_ = 0;
+    prev_stamp_ = -1.0;
     have_last_ = false;
     have_guess_ = false;
     guard_.clear();
@@ -452,6 +471,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     return true;
   }
 
+  Mode mode_ = Mode::kLive;
+  double prev_stamp_ = -1.0;  ///< stamp of the last frame tracked or lost (not rejected)
   std::string odom_frame_, base_frame_, map_frame_, guess_frame_, camera_frame_, trajectory_path_;
   double guess_timeout_s_ = 0.05, static_tf_timeout_s_ = 2.0, lost_pos_var_ = 1.0,
          lost_rot_var_ = 0.1;
@@ -471,7 +492,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   bool have_guess_ = false;
   StampGuard guard_;
   std::atomic<bool> paused_{false};
-  std::uint32_t frames_ = 0, rejected_ = 0;
+  std::uint32_t frames_ = 0, rejected_ = 0, epoch_ = 0;
   int lost_frames_ = 0;
   Eigen::Isometry3d last_T_odom_base_ = Eigen::Isometry3d::Identity();
   ros::Time last_stamp_;

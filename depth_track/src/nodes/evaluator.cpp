@@ -159,22 +159,17 @@ class Evaluator {
 
   void finish() {
     std::string saved;
-    if (!trajectory_path_.empty()) {
+    auto save = [&saved](const char* service, const std::string& path, const char* what) {
+      if (path.empty()) return;
       rig_msgs::SaveFile f;
-      f.request.path = trajectory_path_;
-      if (ros::service::call("registration/save_trajectory", f) && f.response.success)
-        saved += " trajectory=" + f.response.path;
+      f.request.path = path;
+      if (ros::service::call(service, f) && f.response.success)
+        saved += std::string(" ") + what + "=" + f.response.path;
       else
-        ROS_ERROR("evaluator: save_trajectory failed: %s", f.response.message.c_str());
-    }
-    if (!map_path_.empty()) {
-      rig_msgs::SaveFile f;
-      f.request.path = map_path_;
-      if (ros::service::call("fusion/save_map", f) && f.response.success)
-        saved += " map=" + f.response.path;
-      else
-        ROS_ERROR("evaluator: save_map failed: %s", f.response.message.c_str());
-    }
+        ROS_ERROR("evaluator: %s failed: %s", service, f.response.message.c_str());
+    };
+    save("registration/save_trajectory", trajectory_path_, "trajectory");
+    save("fusion/save_map", map_path_, "map");
     Trajectory gt;
     for (const auto& [t, T] : gt_) gt.push_back({t, T});
     std::vector<double> frame_ms;

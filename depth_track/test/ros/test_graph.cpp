@@ -20,6 +20,7 @@
 #include <std_srvs/Trigger.h>
 #include <tf2_msgs/TFMessage.h>
 
+#include <stdlib.h>
 #include <condition_variable>
 #include <cstdio>
 #include <cstring>
@@ -39,6 +40,16 @@ using namespace depth_track;
 namespace {
 
 const int kFrames = 150;
+
+/// A folder of this process's own: several test runs may share the machine's /tmp.
+const std::string& workDir() {
+  static const std::string dir = [] {
+    std::string tmpl = ::testing::TempDir() + "/dt_graph_test_XXXXXX";
+    if (!mkdtemp(tmpl.data())) throw std::runtime_error("cannot create " + tmpl);
+    return tmpl;
+  }();
+  return dir;
+}
 const double kDepthScale = 0.00025;  // the scenario bags' L515 units
 
 struct BagData {
@@ -51,8 +62,7 @@ struct BagData {
 BagData& bag() {
   static BagData data = [] {
     BagData d;
-    const std::string dir = ::testing::TempDir() + "/dt_graph_test";
-    std::filesystem::create_directories(dir);
+    const std::string& dir = workDir();
     const std::string cmd = std::string(MAKE_SCENARIO_BAG) + " --scenario " + DT_SCENARIO_DIR +
                             "/RT3.yaml --out-dir " + dir + " --max-frames " +
                             std::to_string(kFrames) + " --compression none > " + dir +
@@ -259,7 +269,7 @@ TEST(Graph, TracksEveryFrameLikeTheOfflineTracker) {
 
 TEST(Graph, SavedTrajectoryAndMapLoad) {
   ASSERT_EQ(static_cast<int>(run16.size()), kFrames);
-  const std::string dir = ::testing::TempDir() + "/dt_graph_test";
+  const std::string& dir = workDir();
   rig_msgs::SaveFile traj;
   traj.request.path = dir + "/traj.txt";
   ASSERT_TRUE(ros::service::call("/registration/save_trajectory", traj));
@@ -450,11 +460,10 @@ TEST(GraphLoop, MapTrajectoryEqualsTheOfflineMapper) {
   ASSERT_EQ(static_cast<int>(odom.size()), kFrames);
   // The map -> odom decisions, from the saved map-frame trajectory.
   rig_msgs::SaveFile traj;
-  traj.request.path = ::testing::TempDir() + "/dt_graph_test/loop_traj.txt";
+  traj.request.path = workDir() + "/loop_traj.txt";
   ASSERT_TRUE(ros::service::call("/registration/save_trajectory", traj));
   ASSERT_TRUE(traj.response.success) << traj.response.message;
-  const Trajectory graph_map =
-      readTumTrajectory(::testing::TempDir() + "/dt_graph_test/loop_traj_map.txt");
+  const Trajectory graph_map = readTumTrajectory(workDir() + "/loop_traj_map.txt");
   ASSERT_EQ(static_cast<int>(graph_map.size()), kFrames);
 
   const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*bag().infos[0]);
@@ -495,6 +504,7 @@ int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
   ros::init(argc, argv, "dt_test_graph");
   const int rc = RUN_ALL_TESTS();
+  std::filesystem::remove_all(workDir());
   ros::shutdown();
   return rc;
 }
