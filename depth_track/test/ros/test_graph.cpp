@@ -11,6 +11,7 @@
 #include <rig_msgs/ResetToPose.h>
 #include <rig_msgs/SaveFile.h>
 #include <rig_msgs/TrackingStatus.h>
+#include <ros/master.h>
 #include <ros/ros.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
@@ -110,10 +111,22 @@ class Graph {
     const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(timeout_s);
     while (ros::WallTime::now() < end) {
       if (image_.getNumSubscribers() > 0 && info_.getNumSubscribers() > 0 &&
-          status_sub_.getNumPublishers() >= 1 && ros::service::exists("/fusion/save_map", false))
+          status_sub_.getNumPublishers() >= 1 && ros::service::exists("/fusion/save_map", false) &&
+          advertised("/loop_closure/status")) {
+        // Every nodelet is loaded; give their subscriptions to each other a moment to connect
+        // (a mapping nodelet that missed the first frames would count frames differently).
+        ros::WallDuration(1.0).sleep();
         return true;
+      }
       ros::WallDuration(0.1).sleep();
     }
+    return false;
+  }
+  static bool advertised(const std::string& topic) {
+    ros::master::V_TopicInfo topics;
+    if (!ros::master::getTopics(topics)) return false;
+    for (const auto& t : topics)
+      if (t.name == topic) return true;
     return false;
   }
   void setClock(const ros::Time& t) {
