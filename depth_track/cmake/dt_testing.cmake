@@ -1,5 +1,5 @@
 # Test registration for both packages (depth_track's core and rig_drivers' ROS-free code), in
-# one place. Included by depth_track/src/core/CMakeLists.txt and rig_drivers/src/protocol/CMakeLists.txt.
+# one place. Included by depth_track/src/core/CMakeLists.txt and rig_drivers/src/CMakeLists.txt.
 #
 #   dt_testing_enabled(<var>)   sets <var> to ON when tests are to be declared:
 #       catkin build: CATKIN_ENABLE_TESTING (catkin forbids catkin_add_gtest when it is off);

@@ -1,7 +1,8 @@
 #pragma once
 // ROS adapter shared by track_host, car_host and truck_host: loads BoardLinkConfig from private
-// parameters, runs a rig_core BoardLink, publishes the board's 30 Hz state message and every raw
-// frame, and serves the console's command services. All protocol logic lives in rig_core.
+// parameters, runs a BoardLink (rig_link), publishes the board's 30 Hz state message and every raw
+// frame, and serves the console's command services. All protocol logic lives in rig_link and
+// rig_protocol.
 #include <ros/ros.h>
 #include <std_msgs/Bool.h>
 
@@ -11,7 +12,7 @@
 #include <mutex>
 #include <string>
 
-#include "rig_drivers/protocol/serial_port_link.hpp"
+#include "rig_drivers/link/serial_port_link.hpp"
 #include "rig_drivers/ros/conversions.hpp"
 #include "rig_msgs/Command.h"
 #include "rig_msgs/Parameters.h"

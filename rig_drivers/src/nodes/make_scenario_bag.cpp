@@ -35,9 +35,9 @@
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/sim/scene.hpp"
-#include "rig_drivers/protocol/rig_sim.hpp"
 #include "rig_drivers/ros/conversions.hpp"
 #include "rig_drivers/ros/sim_conversions.hpp"
+#include "rig_drivers/sim/rig_sim.hpp"
 
 using namespace rig_drivers;
 namespace dsim = depth_track::sim;

@@ -30,8 +30,8 @@
 #include <cstring>
 #include <map>
 
-#include "rig_drivers/protocol/rig_sim.hpp"
 #include "rig_drivers/ros/sim_conversions.hpp"
+#include "rig_drivers/sim/rig_sim.hpp"
 
 using namespace rig_drivers;
 

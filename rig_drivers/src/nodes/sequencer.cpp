@@ -12,7 +12,7 @@
 #include <cmath>
 #include <mutex>
 
-#include "rig_drivers/protocol/step_script.hpp"
+#include "rig_drivers/sequencing/step_script.hpp"
 #include "rig_msgs/Command.h"
 #include "rig_msgs/SequenceStep.h"
 #include "rig_msgs/SetMode.h"

@@ -53,10 +53,10 @@
 #include <vector>
 
 #include "fuzz_check.hpp"
-#include "rig_drivers/protocol/car_drv.hpp"
+#include "rig_drivers/firmware/car_drv.hpp"
+#include "rig_drivers/firmware/track_drv.hpp"
+#include "rig_drivers/firmware/truck_drv.hpp"
 #include "rig_drivers/protocol/codec.hpp"
-#include "rig_drivers/protocol/track_drv.hpp"
-#include "rig_drivers/protocol/truck_drv.hpp"
 
 namespace rp = rig_drivers::protocol;
 using rp::AckStatus;

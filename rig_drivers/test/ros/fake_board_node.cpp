@@ -3,7 +3,7 @@
 #include <ros/ros.h>
 #include <std_srvs/Trigger.h>
 
-#include "fake_board.hpp"
+#include "../link/fake_board.hpp"
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "fake_board");

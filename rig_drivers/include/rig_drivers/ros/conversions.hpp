@@ -1,8 +1,8 @@
 #pragma once
-// ROS adapters of the rig core: rig_core frames and payload structs -> rig_msgs messages. The one
+// ROS adapters of the rig protocol: codec frames and payload structs -> rig_msgs messages. The one
 // place these conversions live, used by the live board hosts (track_host, car_host, truck_host)
 // and by the offline bag writer (make_scenario_bag), so bags and the live graph carry the same
-// messages. ROS side only: the ROS-free rule covers include/rig_drivers/protocol.
+// messages. ROS side only: the ROS-free rule covers every include/rig_drivers/ folder but ros/.
 #include <ros/time.h>
 
 #include <cstdint>

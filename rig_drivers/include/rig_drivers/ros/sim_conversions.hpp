@@ -12,8 +12,8 @@
 #include <vector>
 
 #include "depth_track/core/servotrack_kinematics.hpp"
-#include "rig_drivers/protocol/rig_sim.hpp"
-#include "rig_drivers/protocol/rig_sim_truck.hpp"
+#include "rig_drivers/sim/rig_sim.hpp"
+#include "rig_drivers/sim/rig_sim_truck.hpp"
 
 namespace rig_drivers {
 namespace conv {
