@@ -2,7 +2,8 @@
 // camera_depth_optical_frame from one of three backends:
 //   v4l2  RealSense Z16 stream through the V4L2 ioctl/mmap interface (no vendor SDK)
 //   sim   renders depth_track's analytic scene from the simulator's true camera pose (T_W_C on
-//         ~pose_topic) with the L515 / D435 noise model of depth_track_sim
+//         ~pose_topic) with the L515 / D435 noise model of depth_track_sim, or a measured one
+//         (~noise_model_file: camera_check's YAML)
 //   tum   plays a TUM-layout folder (depth.txt + 16-bit PNGs) at its timestamps
 // Continuous at ~rate_hz, or with ~triggered one frame per ~trigger call (mode 2 sequencer).
 // Parameters: config/drivers.yaml.
@@ -162,22 +163,21 @@ class V4l2Backend : public Backend {
 // ---- sim ------------------------------------------------------------------------------------
 class SimBackend : public Backend {
  public:
-  SimBackend(ros::NodeHandle& nh, const std::string& scene, const std::string& noise,
+  SimBackend(ros::NodeHandle& nh, const std::string& scene, const dt::sim::NoiseConfig& noise,
              const std::string& pose_topic, const std::vector<double>& static_pose,
              double pose_wait_s, std::uint64_t seed, const dt::DepthRange& range)
-      : noise_(dt::sim::NoiseConfig::forModel(dt::sim::parseNoiseModel(noise))),
-        seed_(seed),
-        range_(range),
-        pose_wait_s_(pose_wait_s) {
+      : noise_(noise), seed_(seed), range_(range), pose_wait_s_(pose_wait_s) {
     if (scene == "chair_room") {
       scene_ = dt::sim::chairRoomScene();
     } else if (scene == "furnished_room") {
       scene_ = dt::sim::furnishedRoomScene();
     } else if (scene == "hall") {
       scene_ = dt::sim::hallwayScene();
+    } else if (scene == "calibration_target") {
+      scene_ = dt::sim::calibrationTargetScene();
     } else {
       throw std::runtime_error("sim backend: unknown ~scene '" + scene +
-                               "' (chair_room, furnished_room, hall)");
+                               "' (chair_room, furnished_room, hall, calibration_target)");
     }
     pose_topic_ = pose_topic;
     if (!static_pose.empty()) {  // fixed pose [x y z qx qy qz qw] (metres, T_W_C)
@@ -336,6 +336,8 @@ class DepthCameraNode {
     pnh.param("device_depth_scale_m", device_scale_m, 0.00025);
     pnh.param<std::string>("scene", scene, "chair_room");
     pnh.param<std::string>("noise", noise, "l515");
+    std::string noise_model_file;
+    pnh.param<std::string>("noise_model_file", noise_model_file, "");
     pnh.param<std::string>("pose_topic", pose_topic, "/rig_sim/camera_pose");
     pnh.param("seed", seed, 1);
     std::vector<double> static_pose;
@@ -383,9 +385,13 @@ class DepthCameraNode {
       if (backend == "v4l2") {
         backend_ = std::make_unique<V4l2Backend>(device, K, device_scale_m, range);
       } else if (backend == "sim") {
+        const dt::sim::NoiseConfig noise_config =
+            noise_model_file.empty()
+                ? dt::sim::NoiseConfig::forModel(dt::sim::parseNoiseModel(noise))
+                : dt::sim::loadNoiseModelYaml(noise_model_file);
         backend_ =
-            std::make_unique<SimBackend>(nh, scene, noise, pose_topic, static_pose, pose_wait_s,
-                                         static_cast<std::uint64_t>(seed), range);
+            std::make_unique<SimBackend>(nh, scene, noise_config, pose_topic, static_pose,
+                                         pose_wait_s, static_cast<std::uint64_t>(seed), range);
       } else {
         backend_ =
             std::make_unique<TumBackend>(tum_folder, K, tum_scale_m, range, loop, file_stamps);

@@ -5,6 +5,7 @@
 //
 //   make_scenario_bag --scenario config/scenarios/RT1.yaml --out-dir bags/generated
 //                     [--compression lz4|bz2|none] [--max-frames N] [--threads N]
+//                     [--noise-model FILE]   (a camera_check report instead of the preset)
 //
 // Topics (stamps = simulated time from a fixed epoch, monotonic per topic):
 //   /camera/image_rect            sensor_msgs/Image 16UC1, frame camera_depth_optical_frame; the
@@ -102,6 +103,7 @@ dsim::Scene sceneByName(const std::string& name) {
   if (name == "chair_room") return dsim::chairRoomScene();
   if (name == "furnished_room") return dsim::furnishedRoomScene();
   if (name == "hall") return dsim::hallwayScene();
+  if (name == "calibration_target") return dsim::calibrationTargetScene();
   throw std::invalid_argument("unknown scene '" + name + "'");
 }
 
@@ -133,7 +135,7 @@ sensor_msgs::CameraInfo cameraInfo(const depth_track::PinholeIntrinsics& K) {
 
 int run(int argc, char** argv) {
   CLI::App app{"Writes one rig simulator scenario as a bag (offline, deterministic)."};
-  std::string scenario_path, out_dir = ".", compression = "lz4";
+  std::string scenario_path, out_dir = ".", compression = "lz4", noise_model_path;
   int max_frames = 0, threads = 1;
   app.add_option("--scenario", scenario_path, "scenario YAML (config/scenarios/*.yaml)")
       ->required();
@@ -141,6 +143,9 @@ int run(int argc, char** argv) {
   app.add_option("--compression", compression, "none | lz4 | bz2");
   app.add_option("--max-frames", max_frames, "stop after this many camera frames (0 = all)");
   app.add_option("--threads", threads, "render threads (1 = serial; <= 0 = all cores)");
+  app.add_option("--noise-model", noise_model_path,
+                 "noise model YAML (camera_check's noise_model section) instead of the "
+                 "scenario's noise preset: a run as a measured camera would record it");
   CLI11_PARSE(app, argc, argv);
   if (compression != "none" && compression != "lz4" && compression != "bz2") {
     std::cerr << "make_scenario_bag: --compression must be none, lz4 or bz2 (got '" << compression
@@ -157,8 +162,11 @@ int run(int argc, char** argv) {
   RigSimulator sim(scenario);
   const dsim::Scene scene = sceneByName(scenario.scene);
   const dsim::NoiseConfig noise =
-      dsim::NoiseConfig::forModel(dsim::parseNoiseModel(scenario.noise));
-  const double depth_scale = dsim::nativeDepthScale(noise.model);
+      noise_model_path.empty() ? dsim::NoiseConfig::forModel(dsim::parseNoiseModel(scenario.noise))
+                               : dsim::loadNoiseModelYaml(noise_model_path);
+  // A measured model's own unit when it has one that still spans the depth range in 16 bits.
+  const double depth_scale =
+      noise.quantum_m >= 1e-4 ? noise.quantum_m : dsim::nativeDepthScale(noise.model);
   const depth_track::PinholeIntrinsics K = dsim::l515Intrinsics();
   const depth_track::DepthRange range;
   const int want_frames =

@@ -352,7 +352,7 @@ RigSimulator::Impl::Impl(const Scenario& s, const RigSimConfig& c) : sc(s), cfg(
     pitch_servo->reset(0.0);
     yaw_servo->reset(0.0);
     car_hw->carriage_m = carriage_m;
-  } else {
+  } else if (sc.rig == RigKind::kServoTruck) {
     links.push_back(std::make_unique<SimLink>(BoardId::kTruck, cfg.truck_link, mix(seed, 4)));
     TruckState start;
     start.x_m = sc.truck.start_x_m;
@@ -474,6 +474,15 @@ RigTruth RigSimulator::Impl::truthNow() const {
     Eigen::Vector3d dir = cfg.track_geometry.direction_W.normalized();
     const Eigen::Vector3d f_W = belt->acceleration() * dir + Eigen::Vector3d(0, 0, kG);
     r.accel_C_g = r.T_W_C.rotation().transpose() * f_W / kG;
+  } else if (sc.rig == RigKind::kTripod) {
+    // On the target's axis at its centre height, looking at its face (the scene's frame: face at
+    // x = 0 facing -x, centre 1 m up); base_link is the camera body.
+    r.T_W_C.linear() = depth_track::rotationBodyFromOptical();
+    const double t_run = motion_t0 < 0.0 ? 0.0 : t - motion_t0 - cfg.camera_phase_s;
+    r.T_W_C.translation() = Eigen::Vector3d(-sc.tripod.distanceAt(t_run), 0.0, 1.0);
+    r.T_W_B = r.T_W_C;
+    r.T_W_B.linear() = Eigen::Matrix3d::Identity();
+    r.accel_C_g = r.T_W_C.rotation().transpose() * Eigen::Vector3d(0, 0, 1.0);
   } else {
     r.truck = truck->state();
     r.T_W_B = truck->T_W_B();
@@ -512,6 +521,14 @@ void RigSimulator::Impl::host() {
   const double frame_dt = 1.0 / sc.frame_rate_hz;
   const int total = sc.frameCount();
 
+  if (sc.rig == RigKind::kTripod) {
+    // No boards: the camera records from t = 0 until the last station's hold is over.
+    if (motion_t0 < 0.0) motion_t0 = 0.0;
+    const double next = motion_t0 + cfg.camera_phase_s + frames * frame_dt;
+    if (t + 1e-12 >= next && frames < total) takeFrame();
+    if (frames >= total) phase = Phase::kDone;
+    return;
+  }
   if (sc.rig == RigKind::kServoTruck) {
     // The RC transmitter drives the truck from t = 0; the camera records throughout.
     if (motion_t0 < 0.0) motion_t0 = 0.0;
@@ -681,7 +698,7 @@ void RigSimulator::Impl::physics() {
     car_hw->yaw_deg = yaw_servo->angle();
     car_hw->carriage_m = carriage_m;
     car_hw->accel_C_g = truthNow().accel_C_g;
-  } else {
+  } else if (sc.rig == RigKind::kServoTruck) {
     truck_hw->t = t;
     truck->step(dt, truck_hw->speedDemandMps(), truck_hw->steering);
   }

@@ -88,6 +88,7 @@ RigKind parseRig(const std::string& s, bool* ok) {
   *ok = true;
   if (s == "servotrack") return RigKind::kServoTrack;
   if (s == "servotruck") return RigKind::kServoTruck;
+  if (s == "tripod") return RigKind::kTripod;
   *ok = false;
   return RigKind::kServoTrack;
 }
@@ -110,7 +111,14 @@ std::string num(double v) {
 }  // namespace
 
 const char* toString(RigKind rig) {
-  return rig == RigKind::kServoTrack ? "servotrack" : "servotruck";
+  switch (rig) {
+    case RigKind::kServoTrack:
+      return "servotrack";
+    case RigKind::kServoTruck:
+      return "servotruck";
+    default:
+      return "tripod";
+  }
 }
 
 const char* toString(ServoAxis axis) {
@@ -130,7 +138,27 @@ double TruckScenario::duration() const {
   return d;
 }
 
+double TripodScenario::duration() const {
+  if (distances_m.empty()) return 0.0;
+  return distances_m.size() * hold_s + (distances_m.size() - 1) * move_s;
+}
+
+double TripodScenario::distanceAt(double t_s) const {
+  if (distances_m.empty()) return 0.0;
+  const double period = hold_s + move_s;
+  const double k = std::floor(std::max(t_s, 0.0) / period);
+  const std::size_t i = std::min(static_cast<std::size_t>(k), distances_m.size() - 1);
+  const double in = t_s - i * period;
+  if (i + 1 >= distances_m.size() || in <= hold_s) return distances_m[i];
+  // Smoothstep: starts and stops at rest, as a camera carried by hand or on a trolley would.
+  const double u = std::min((in - hold_s) / std::max(move_s, 1e-12), 1.0);
+  const double w = u * u * (3.0 - 2.0 * u);
+  return distances_m[i] + w * (distances_m[i + 1] - distances_m[i]);
+}
+
 int Scenario::frameCount() const {
+  if (rig == RigKind::kTripod)
+    return static_cast<int>(std::floor(tripod.duration() * frame_rate_hz + 1e-9));
   if (rig == RigKind::kServoTrack) {
     return track.mode == 2 ? track.still_frames + track.steps : track.frames;
   }
@@ -139,6 +167,7 @@ int Scenario::frameCount() const {
 
 double Scenario::durationS() const {
   if (rig == RigKind::kServoTruck) return truck.duration();
+  if (rig == RigKind::kTripod) return tripod.duration();
   if (track.mode == 1) return track.duration_s;
   // Cruise-only estimate plus settling per step; the simulator reports the real length.
   const double per_step =
@@ -154,8 +183,18 @@ std::vector<std::string> Scenario::validate() const {
   if (name.empty()) p.push_back("name: must not be empty");
   if (name.find_first_of("/ \t") != std::string::npos)
     p.push_back("name: must be usable as a file name (got '" + name + "')");
-  if (scene != "chair_room" && scene != "furnished_room" && scene != "hall")
-    p.push_back("scene: must be chair_room, furnished_room or hall (got '" + scene + "')");
+  if (scene != "chair_room" && scene != "furnished_room" && scene != "hall" &&
+      scene != "calibration_target")
+    p.push_back("scene: must be chair_room, furnished_room, hall or calibration_target (got '" +
+                scene + "')");
+  // The tripod's poses are defined by the distance to the calibration target's face.
+  if ((rig == RigKind::kTripod) != (scene == "calibration_target"))
+    p.push_back(rig == RigKind::kTripod
+                    ? "scene: a tripod run stands before the calibration target: scene must be "
+                      "calibration_target (got '" +
+                          scene + "')"
+                    : "scene: calibration_target is for rig tripod (got rig " +
+                          std::string(toString(rig)) + ")");
   if (noise != "l515" && noise != "d435" && noise != "none")
     p.push_back("noise: must be l515, d435 or none (got '" + noise + "')");
   positive("frame_rate_hz", frame_rate_hz);
@@ -207,6 +246,20 @@ std::vector<std::string> Scenario::validate() const {
         p.push_back("track.steps: the sequence ends at " + num(end_m) +
                     " m, off the 0..1.2 m track");
     }
+  } else if (rig == RigKind::kTripod) {
+    const TripodScenario& t = tripod;
+    if (t.distances_m.empty()) p.push_back("tripod.distances_m: at least one distance is needed");
+    for (std::size_t i = 0; i < t.distances_m.size(); ++i) {
+      // The face beyond the renderer's 0.53 m near limit, the wall 0.6 m behind it within 4 m.
+      const double d = t.distances_m[i];
+      if (!(d >= 0.55 && d <= 3.4))
+        p.push_back("tripod.distances_m: [" + std::to_string(i) + "] must be 0.55..3.4 m (got " +
+                    num(d) + ")");
+    }
+    positive("tripod.hold_s", t.hold_s);
+    if (!(t.move_s >= 0.0)) p.push_back("tripod.move_s: must be >= 0 (got " + num(t.move_s) + ")");
+    if (t.hold_s > 0.0 && t.hold_s * frame_rate_hz < 1.0)
+      p.push_back("tripod.hold_s: shorter than one frame at frame_rate_hz");
   } else {
     if (truck.segments.empty()) p.push_back("truck.segments: at least one segment is needed");
     for (std::size_t i = 0; i < truck.segments.size(); ++i) {
@@ -240,7 +293,8 @@ Scenario parseScenario(const std::string& yaml_text, const std::string& source) 
   top.get("seed", &s.seed);
   bool ok = false;
   s.rig = parseRig(rig, &ok);
-  if (!ok) top.fail(root["rig"], "rig", "must be servotrack or servotruck (got '" + rig + "')");
+  if (!ok)
+    top.fail(root["rig"], "rig", "must be servotrack, servotruck or tripod (got '" + rig + "')");
 
   // Field name -> line, for the problems validate() finds after parsing.
   std::map<std::string, int> lines;
@@ -248,8 +302,36 @@ Scenario parseScenario(const std::string& yaml_text, const std::string& source) 
 
   YAML::Node track = top.child("track");
   YAML::Node truck = top.child("truck");
+  YAML::Node tripod = top.child("tripod");
   top.rejectUnknown();
-  if (s.rig == RigKind::kServoTrack) {
+  if (s.rig != RigKind::kTripod && tripod)
+    top.fail(tripod, "tripod", std::string("not allowed for rig ") + toString(s.rig));
+  if (s.rig == RigKind::kTripod) {
+    if (!tripod) top.fail(root, "tripod", "missing (needed for rig tripod)");
+    for (const auto& [node, key] : {std::pair{track, "track"}, std::pair{truck, "truck"}})
+      if (node) top.fail(node, key, "not allowed for rig tripod");
+    Fields f(tripod, "tripod.", source);
+    f.get("hold_s", &s.tripod.hold_s);
+    f.get("move_s", &s.tripod.move_s);
+    YAML::Node dist = f.child("distances_m");
+    f.rejectUnknown();
+    if (!dist || !dist.IsSequence())
+      f.fail(dist ? dist : tripod, "tripod.distances_m", "must be a list of distances, m");
+    for (std::size_t i = 0; i < dist.size(); ++i) {
+      const std::string field = "tripod.distances_m[" + std::to_string(i) + "]";
+      double d = 0.0;
+      try {
+        d = dist[i].as<double>();
+      } catch (const YAML::Exception&) {
+        f.fail(dist[i], field, "cannot read '" + dist[i].Scalar() + "' as a number");
+      }
+      if (!std::isfinite(d)) f.fail(dist[i], field, "must be a finite number");
+      s.tripod.distances_m.push_back(d);
+    }
+    lines["tripod.hold_s"] = f.line("hold_s");
+    lines["tripod.move_s"] = f.line("move_s");
+    lines["tripod.distances_m"] = dist.Mark().line + 1;
+  } else if (s.rig == RigKind::kServoTrack) {
     if (!track) top.fail(root, "track", "missing (needed for rig servotrack)");
     if (truck) top.fail(truck, "truck", "not allowed for rig servotrack");
     Fields f(track, "track.", source);

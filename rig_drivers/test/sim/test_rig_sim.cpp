@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "rig_drivers/firmware/car_drv.hpp"
 #include "rig_drivers/firmware/truck_drv.hpp"
@@ -118,6 +119,38 @@ TEST(RigSim, StepModeTakesOneStillFramePerStep) {
   }
   // Nothing on the gimbal.
   for (const auto& f : r.frames) ASSERT_NEAR(f.truth.pitch_deg, 0.0, 1e-9);
+}
+
+TEST(RigSim, TripodStandsStillOnTheTargetAxisAtEachDistance) {
+  const Recorded r = record("Calibration_L515");
+  const Scenario sc = loadScenario(kScenarios + "Calibration_L515.yaml");
+  ASSERT_TRUE(r.finished && !r.failed);
+  EXPECT_TRUE(r.log.empty());  // no boards, nothing on any link
+  ASSERT_EQ(static_cast<int>(r.frames.size()), sc.frameCount());
+  const double period = sc.tripod.hold_s + sc.tripod.move_s;
+  const double t0 = r.frames[0].truth.t_s;
+  std::vector<int> still(sc.tripod.distances_m.size(), 0);
+  for (const SimCameraFrame& f : r.frames) {
+    const double t_run = f.truth.t_s - t0;
+    ASSERT_NEAR(t_run, f.index / 30.0, 1.0 / r.cfg.physics_rate_hz + 1e-9);
+    // Looking along +x (the target's axis) at its centre height, whatever the distance.
+    const Eigen::Vector3d view = f.truth.T_W_C.rotation().col(2);
+    ASSERT_NEAR(view.x(), 1.0, 1e-12);
+    ASSERT_NEAR(f.truth.T_W_C.translation().y(), 0.0, 1e-12);
+    ASSERT_NEAR(f.truth.T_W_C.translation().z(), 1.0, 1e-12);
+    const double d = -f.truth.T_W_C.translation().x();
+    const std::size_t i = static_cast<std::size_t>(t_run / period);
+    if (t_run - i * period <= sc.tripod.hold_s - 1e-3) {
+      ASSERT_EQ(d, sc.tripod.distances_m[i]) << "frame " << f.index;
+      ++still[i];
+    } else {
+      // Carried: between this distance and the next.
+      ASSERT_GE(d, std::min(sc.tripod.distances_m[i], sc.tripod.distances_m[i + 1]));
+      ASSERT_LE(d, std::max(sc.tripod.distances_m[i], sc.tripod.distances_m[i + 1]));
+    }
+  }
+  // Every hold gives its 2 s of still frames (one frame either way with the camera's phase).
+  for (int n : still) EXPECT_NEAR(n, sc.tripod.hold_s * 30.0, 1.0);
 }
 
 TEST(RigSim, TrackPositionDiffersFromTruthByBeltStretchOnly) {

@@ -2,7 +2,9 @@
 // file, line and field.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <string>
+#include <vector>
 
 #include "rig_drivers/sim/rig_sim_scenario.hpp"
 
@@ -27,7 +29,8 @@ std::string parseError(const std::string& text) {
 
 TEST(RigSimScenario, AllCommittedScenariosParse) {
   const auto files = listScenarioFiles(kScenarios);
-  ASSERT_EQ(files.size(), 10u);  // XTest1_05_Chair, RT1..RT6, Chair3, Room3, Hall1
+  // XTest1_05_Chair, RT1..RT6, Chair3, Room3, Hall1, Calibration_L515
+  ASSERT_EQ(files.size(), 11u);
   for (const auto& f : files) {
     SCOPED_TRACE(f);
     const Scenario s = loadScenario(f);
@@ -76,6 +79,56 @@ TEST(RigSimScenario, XTestIsThreeStillFramesThenHundredTenMillimetreSteps) {
   EXPECT_EQ(s.track.steps, 100);
   EXPECT_DOUBLE_EQ(s.track.step_mm, 10.0);
   EXPECT_EQ(s.frameCount(), 103);
+}
+
+TEST(RigSimScenario, CalibrationRunStandsAtTheDistancesOfTable42) {
+  const Scenario s = loadScenario(kScenarios + "/Calibration_L515.yaml");
+  EXPECT_EQ(s.rig, RigKind::kTripod);
+  EXPECT_EQ(s.scene, "calibration_target");
+  const std::vector<double> table_4_2 = {0.56, 0.6, 0.76, 1.2,  1.47, 1.77,
+                                         2.0,  2.2, 2.47, 2.75, 3.0};
+  EXPECT_EQ(s.tripod.distances_m, table_4_2);
+  // "A few seconds each, camera still": at least 1.5 s of frames at every distance.
+  EXPECT_GE(s.tripod.hold_s * s.frame_rate_hz, 45.0);
+  const double period = s.tripod.hold_s + s.tripod.move_s;
+  for (std::size_t i = 0; i < table_4_2.size(); ++i) {
+    SCOPED_TRACE(i);
+    EXPECT_EQ(s.tripod.distanceAt(i * period), table_4_2[i]);
+    EXPECT_EQ(s.tripod.distanceAt(i * period + s.tripod.hold_s), table_4_2[i]);
+    if (i + 1 < table_4_2.size()) {
+      const double mid = s.tripod.distanceAt(i * period + s.tripod.hold_s + 0.5 * s.tripod.move_s);
+      EXPECT_NEAR(mid, 0.5 * (table_4_2[i] + table_4_2[i + 1]), 1e-12);  // smoothstep midpoint
+    }
+  }
+  EXPECT_EQ(
+      s.frameCount(),
+      static_cast<int>(std::floor((11 * s.tripod.hold_s + 10 * s.tripod.move_s) * 30.0 + 1e-9)));
+}
+
+TEST(RigSimScenario, BadTripodRunsAreNamed) {
+  const std::string head = "name: X\nrig: tripod\nscene: calibration_target\n";
+  EXPECT_NE(parseError(head).find(": tripod: missing (needed for rig tripod)"), std::string::npos)
+      << parseError(head);
+  std::string e = parseError(head + "tripod:\n  distances_m: [0.6, 5.0]\n");
+  EXPECT_NE(e.find("bad.yaml:5: tripod.distances_m: [1] must be 0.55..3.4 m (got 5)"),
+            std::string::npos)
+      << e;
+  e = parseError(head + "tripod:\n  distances_m: [0.6, far]\n");
+  EXPECT_NE(e.find("bad.yaml:5: tripod.distances_m[1]: cannot read 'far' as a number"),
+            std::string::npos)
+      << e;
+  e = parseError(head + "tripod:\n  distances_m: 1.2\n");
+  EXPECT_NE(e.find("tripod.distances_m: must be a list"), std::string::npos) << e;
+  e = parseError(head + "tripod:\n  distances_m: [1.2]\n  hold_s: 0\n");
+  EXPECT_NE(e.find("bad.yaml:6: tripod.hold_s: must be > 0"), std::string::npos) << e;
+  e = parseError("name: X\nrig: tripod\nscene: chair_room\ntripod:\n  distances_m: [1.2]\n");
+  EXPECT_NE(e.find("bad.yaml:3: scene: a tripod run stands before the calibration target"),
+            std::string::npos)
+      << e;
+  e = parseError(head + "tripod:\n  distances_m: [1.2]\ntrack:\n  mode: 1\n");
+  EXPECT_NE(e.find(": track: not allowed for rig tripod"), std::string::npos) << e;
+  e = parseError("name: X\nrig: servotrack\ntrack:\n  mode: 1\ntripod:\n  hold_s: 1\n");
+  EXPECT_NE(e.find(": tripod: not allowed for rig servotrack"), std::string::npos) << e;
 }
 
 TEST(RigSimScenario, SyntaxErrorNamesFileAndLine) {

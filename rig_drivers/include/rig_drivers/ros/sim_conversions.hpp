@@ -60,10 +60,10 @@ inline geometry_msgs::PoseStamped toPoseStamped(const ros::Time& stamp, const st
 }
 
 /// base_link -> camera_link (camera body: x forward, y left, z up) of the simulated rig. On
-/// ServoTrack base_link is the camera body itself (the gimbal moves it), on ServoTruck the rear
-/// axle.
+/// ServoTrack and a tripod base_link is the camera body itself (the gimbal moves it), on ServoTruck
+/// the rear axle.
 inline Eigen::Isometry3d baseToCameraLink(const RigSimulator& sim) {
-  if (sim.scenario().rig == RigKind::kServoTrack) return Eigen::Isometry3d::Identity();
+  if (sim.scenario().rig != RigKind::kServoTruck) return Eigen::Isometry3d::Identity();
   TruckModel m(sim.config().truck);
   Eigen::Isometry3d T = m.T_B_C();
   T.linear() = T.linear() * depth_track::rotationBodyFromOptical().transpose();

@@ -15,7 +15,9 @@ class ScenarioError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-enum class RigKind { kServoTrack, kServoTruck };
+/// kTripod: no rig boards, the camera alone on a tripod (the camera calibration runs of thesis
+/// §4.1.3).
+enum class RigKind { kServoTrack, kServoTruck, kTripod };
 enum class ServoAxis { kNone, kPitch, kYaw };
 
 /// ServoTrack run: the carriage on the track with the pitch/yaw gimbal.
@@ -54,17 +56,31 @@ struct TruckScenario {
   double duration() const;  ///< sum of the segment durations, s
 };
 
+/// Tripod run (camera calibration, thesis §4.1.3 and table 4.2): the camera stands still on the
+/// calibration target's axis at each distance in turn and is carried to the next one in between,
+/// recording throughout. The distance is from the camera to the target's face, along the view.
+struct TripodScenario {
+  std::vector<double> distances_m;  ///< stations, in the order visited, m
+  double hold_s = 2.0;              ///< still time at each station, s
+  double move_s = 0.5;              ///< carrying time between stations (camera moving), s
+  double duration() const;          ///< whole run, s
+  /// Camera distance to the target's face at time t_s from the start of the run (smooth moves
+  /// between stations: no jump in speed at either end), m.
+  double distanceAt(double t_s) const;
+};
+
 /// A complete scenario. Defaults are those of the ServoTrack runs of the thesis.
 struct Scenario {
   std::string name;         ///< e.g. "RT1"; the bag is <name>.bag
   std::string description;  ///< one line, free text
   RigKind rig = RigKind::kServoTrack;
-  std::string scene = "chair_room";  ///< chair_room | furnished_room | hall
+  std::string scene = "chair_room";  ///< chair_room | furnished_room | hall | calibration_target
   std::string noise = "l515";        ///< depth noise model: l515 | d435 | none
   double frame_rate_hz = 30.0;       ///< camera frame rate, Hz
   std::uint64_t seed = 1;            ///< seed of every random draw of the run
   TrackScenario track;
   TruckScenario truck;
+  TripodScenario tripod;
 
   /// Every problem with this scenario (empty = valid); each names its field.
   std::vector<std::string> validate() const;

@@ -1,0 +1,151 @@
+// The calibration scenario end to end: make_scenario_bag renders a short tripod run derived from
+// config/scenarios/Calibration_L515.yaml (same scene, camera, rate and seed; three of its
+// distances, shorter holds), camera_check finds the still periods in the bag and recovers the
+// noise model and depth bias it was rendered with and the camera's focal constant; the report it
+// writes renders a second bag (make_scenario_bag --noise-model) that measures the same. Runs both
+// tools; no roscore.
+#include <gtest/gtest.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/sim/noise.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
+
+#ifndef MAKE_SCENARIO_BAG
+#error "MAKE_SCENARIO_BAG must name the make_scenario_bag executable"
+#endif
+#ifndef CAMERA_CHECK
+#error "CAMERA_CHECK must name the camera_check executable"
+#endif
+#ifndef RIG_SCENARIO_DIR
+#error "RIG_SCENARIO_DIR must name config/scenarios"
+#endif
+
+namespace fs = std::filesystem;
+namespace dsim = depth_track::sim;
+
+namespace {
+
+// Near, middle and far distance of table 4.2.
+const std::vector<double> kDistances = {0.56, 1.47, 3.0};
+const char* kDistanceArg = "0.56,1.47,3.0";
+constexpr double kBias = 0.0063;  // the thesis's L515 (table 4.2)
+
+struct TmpDir {
+  std::string path;
+  TmpDir() {
+    char tmpl[] = "/tmp/rig_calib_bag_XXXXXX";
+    const char* d = mkdtemp(tmpl);
+    path = d ? d : "/tmp";
+  }
+  ~TmpDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+struct Run {
+  int rc = -1;
+  std::string output;
+};
+
+Run run(const std::string& cmd, const std::string& log) {
+  Run r;
+  const int status = std::system((cmd + " > " + log + " 2>&1").c_str());
+  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream in(log);
+  std::stringstream s;
+  s << in.rdbuf();
+  r.output = s.str();
+  return r;
+}
+
+/// The committed calibration scenario with three of its distances and 1.5 s holds, as `name`.
+std::string shortScenario(const std::string& dir, const std::string& name) {
+  YAML::Node s = YAML::LoadFile(std::string(RIG_SCENARIO_DIR) + "/Calibration_L515.yaml");
+  s["name"] = name;
+  s["tripod"]["distances_m"] = kDistances;
+  s["tripod"]["hold_s"] = 1.5;
+  const std::string path = dir + "/" + name + ".yaml";
+  std::ofstream(path) << s;
+  return path;
+}
+
+/// Renders the scenario (with `noise_model`, a camera_check-style YAML, when given) and runs
+/// camera_check on the bag; returns the report.
+YAML::Node measure(const TmpDir& tmp, const std::string& name, const std::string& noise_model) {
+  const std::string scenario = shortScenario(tmp.path, name);
+  const Run bag = run(std::string(MAKE_SCENARIO_BAG) + " --scenario " + scenario + " --out-dir " +
+                          tmp.path + (noise_model.empty() ? "" : " --noise-model " + noise_model),
+                      tmp.path + "/" + name + "_bag.log");
+  EXPECT_EQ(bag.rc, 0) << bag.output;
+  const std::string report = tmp.path + "/" + name + "_report.yaml";
+  const Run check = run(std::string(CAMERA_CHECK) + " " + tmp.path + "/" + name + ".bag" +
+                            " --distances " + kDistanceArg + " --diameter 0.6 --out " + report,
+                        tmp.path + "/" + name + "_check.log");
+  std::printf("%s", check.output.c_str());
+  EXPECT_EQ(check.rc, 0) << check.output;
+  return check.rc == 0 ? YAML::LoadFile(report) : YAML::Node();
+}
+
+/// The tolerances: sigma within 10 % at each distance, bias within 0.1 % of depth, CAM_K
+/// within 0.5 % (of the fx the scenario bags are rendered with).
+void expectRecovered(const YAML::Node& doc, const dsim::NoiseConfig& truth) {
+  const YAML::Node segs = doc["camera_check"]["segments"];
+  ASSERT_EQ(segs.size(), kDistances.size());  // the still periods, the moves left out
+  const double true_k = dsim::l515Intrinsics().fx;
+  for (std::size_t k = 0; k < kDistances.size(); ++k) {
+    SCOPED_TRACE("distance " + std::to_string(kDistances[k]));
+    const YAML::Node s = segs[k];
+    ASSERT_TRUE(s["target_found"].as<bool>()) << s["target_note"].as<std::string>();
+    // 1.5 s holds less 0.2 s trimmed at each end: ~33 frames at 30 Hz.
+    EXPECT_GE(s["frames"].as<int>(), 25);
+    EXPECT_NEAR(s["reference_distance_m"].as<double>(), kDistances[k], 1e-9);
+    const double expected_z = (1.0 + truth.depth_scale_bias) * kDistances[k] + truth.depth_offset_m;
+    EXPECT_NEAR(s["camera_depth_m"].as<double>(), expected_z, 0.001 * kDistances[k]);
+    const double sigma = truth.sigmaAt(kDistances[k]);
+    EXPECT_NEAR(s["sigma_spatial_m"].as<double>(), sigma, 0.1 * sigma);
+    EXPECT_NEAR(s["sigma_temporal_m"].as<double>(), sigma, 0.1 * sigma);
+    EXPECT_NEAR(s["cam_k_px"].as<double>(), true_k, 0.005 * true_k);
+  }
+  const YAML::Node fit = doc["camera_check"]["fit"];
+  EXPECT_NEAR(fit["depth_scale"].as<double>(), 1.0 + truth.depth_scale_bias, 0.001);
+  EXPECT_NEAR(fit["cam_k_px"].as<double>(), true_k, 0.005 * true_k);
+  EXPECT_NEAR(doc["depth_correction"]["scale"].as<double>(), 1.0 + truth.depth_scale_bias, 0.001);
+}
+
+}  // namespace
+
+TEST(CalibrationBag, CameraCheckRecoversTheCameraTheBagWasRenderedWith) {
+  TmpDir tmp;
+  // The L515 preset reading 0.63 % long, as the thesis's camera did.
+  const std::string model = tmp.path + "/l515_biased.yaml";
+  std::ofstream(model) << "noise_model:\n  base: l515\n  depth_scale_bias: " << kBias << "\n";
+  dsim::NoiseConfig truth = dsim::NoiseConfig::forModel(dsim::NoiseModel::kL515);
+  truth.depth_scale_bias = kBias;
+  const YAML::Node first = measure(tmp, "calib_a", model);
+  ASSERT_TRUE(first) << "camera_check failed on the first bag";
+  expectRecovered(first, truth);
+
+  // Its report as the next bag's camera: the simulated camera is the measured one.
+  const dsim::NoiseConfig measured = dsim::loadNoiseModelYaml(tmp.path + "/calib_a_report.yaml");
+  EXPECT_NEAR(measured.depth_scale_bias, kBias, 0.001);
+  const YAML::Node second = measure(tmp, "calib_b", tmp.path + "/calib_a_report.yaml");
+  ASSERT_TRUE(second) << "camera_check failed on the second bag";
+  expectRecovered(second, measured);
+}
+
+TEST(CalibrationBag, PresetCameraReadsTrueDepth) {
+  TmpDir tmp;
+  const YAML::Node doc = measure(tmp, "calib_preset", "");
+  ASSERT_TRUE(doc);
+  expectRecovered(doc, dsim::NoiseConfig::forModel(dsim::NoiseModel::kL515));
+}
