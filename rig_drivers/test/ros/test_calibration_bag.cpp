@@ -5,19 +5,16 @@
 // writes renders a second bag (make_scenario_bag --noise-model) that measures the same. Runs both
 // tools; no roscore.
 #include <gtest/gtest.h>
-#include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cstdio>
-#include <cstdlib>
-#include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <string>
 #include <vector>
 
 #include "depth_track/core/sim/noise.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
+#include "tool_test.hpp"
 
 #ifndef MAKE_SCENARIO_BAG
 #error "MAKE_SCENARIO_BAG must name the make_scenario_bag executable"
@@ -29,7 +26,6 @@
 #error "RIG_SCENARIO_DIR must name config/scenarios"
 #endif
 
-namespace fs = std::filesystem;
 namespace dsim = depth_track::sim;
 
 namespace {
@@ -39,34 +35,8 @@ const std::vector<double> kDistances = {0.56, 1.47, 3.0};
 const char* kDistanceArg = "0.56,1.47,3.0";
 constexpr double kBias = 0.0063;  // the thesis's L515 (table 4.2)
 
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char tmpl[] = "/tmp/rig_calib_bag_XXXXXX";
-    const char* d = mkdtemp(tmpl);
-    path = d ? d : "/tmp";
-  }
-  ~TmpDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
-struct Run {
-  int rc = -1;
-  std::string output;
-};
-
-Run run(const std::string& cmd, const std::string& log) {
-  Run r;
-  const int status = std::system((cmd + " > " + log + " 2>&1").c_str());
-  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream in(log);
-  std::stringstream s;
-  s << in.rdbuf();
-  r.output = s.str();
-  return r;
-}
+using depth_track::tool_test::runTool;
+using depth_track::tool_test::TmpDir;
 
 /// The committed calibration scenario with three of its distances and 1.5 s holds, as `name`.
 std::string shortScenario(const std::string& dir, const std::string& name) {
@@ -83,14 +53,16 @@ std::string shortScenario(const std::string& dir, const std::string& name) {
 /// camera_check on the bag; returns the report.
 YAML::Node measure(const TmpDir& tmp, const std::string& name, const std::string& noise_model) {
   const std::string scenario = shortScenario(tmp.path, name);
-  const Run bag = run(std::string(MAKE_SCENARIO_BAG) + " --scenario " + scenario + " --out-dir " +
-                          tmp.path + (noise_model.empty() ? "" : " --noise-model " + noise_model),
-                      tmp.path + "/" + name + "_bag.log");
+  const auto bag = runTool(MAKE_SCENARIO_BAG,
+                           "--scenario " + scenario + " --out-dir " + tmp.path +
+                               (noise_model.empty() ? "" : " --noise-model " + noise_model),
+                           tmp.path);
   EXPECT_EQ(bag.rc, 0) << bag.output;
   const std::string report = tmp.path + "/" + name + "_report.yaml";
-  const Run check = run(std::string(CAMERA_CHECK) + " " + tmp.path + "/" + name + ".bag" +
-                            " --distances " + kDistanceArg + " --diameter 0.6 --out " + report,
-                        tmp.path + "/" + name + "_check.log");
+  const auto check = runTool(CAMERA_CHECK,
+                             tmp.path + "/" + name + ".bag --distances " + kDistanceArg +
+                                 " --diameter 0.6 --out " + report,
+                             tmp.path);
   std::printf("%s", check.output.c_str());
   EXPECT_EQ(check.rc, 0) << check.output;
   return check.rc == 0 ? YAML::LoadFile(report) : YAML::Node();
@@ -148,4 +120,18 @@ TEST(CalibrationBag, PresetCameraReadsTrueDepth) {
   const YAML::Node doc = measure(tmp, "calib_preset", "");
   ASSERT_TRUE(doc);
   expectRecovered(doc, dsim::NoiseConfig::forModel(dsim::NoiseModel::kL515));
+}
+
+TEST(CalibrationBag, BadNoiseModelIsNamedBeforeAnythingIsWritten) {
+  TmpDir tmp;
+  const std::string scenario = shortScenario(tmp.path, "calib_bad");
+  const std::string model = tmp.path + "/typo.yaml";
+  std::ofstream(model) << "noise_model:\n  base: l515\n  sigma_lineer: 0.001\n";
+  const auto r = runTool(
+      MAKE_SCENARIO_BAG,
+      "--scenario " + scenario + " --out-dir " + tmp.path + " --noise-model " + model, tmp.path);
+  EXPECT_EQ(r.rc, 1);
+  EXPECT_NE(r.output.find(model + ":3: noise_model.sigma_lineer: unknown key"), std::string::npos)
+      << r.output;
+  EXPECT_FALSE(std::ifstream(tmp.path + "/calib_bad.bag").good());
 }
