@@ -1035,10 +1035,12 @@ void writeCameraCheckYaml(const std::string& path, const CameraCheckReport& rep)
   std::ostringstream o;
   o << "# camera_check: camera characterisation from " << rep.source << "\n"
     << "# camera_check: measurements and fits (docs/camera_check.md explains every field).\n"
-    << "# noise_model: load with render_sequence --noise-model FILE or the rig simulator's depth\n"
-    << "#   camera (noise_model_file); effects not measured come from the preset named by base.\n"
-    << "# depth_correction: load with track_sequence --depth-correction FILE; the tracker then\n"
-    << "#   reads true depth = (reported - offset_m) / scale.\n";
+    << "# noise_model: load with render_sequence / make_scenario_bag --noise-model FILE or the\n"
+    << "#   depth_camera sim backend's ~noise_model_file; effects not measured come from the\n"
+    << "#   preset named by base.\n"
+    << "# depth_correction: load with track_sequence / evaluate_bag --depth-correction FILE or\n"
+    << "#   the ingest nodelet's ~depth_correction; the tracker then reads true depth =\n"
+    << "#   (reported - offset_m) / scale.\n";
   o << "camera_check:\n"
     << "  source: " << yamlStr(rep.source) << "\n"
     << "  intrinsics: {width: " << K.width << ", height: " << K.height << ", fx: " << yamlNum(K.fx)
