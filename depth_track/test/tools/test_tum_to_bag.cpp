@@ -2,8 +2,8 @@
 // (frames, stamps, intrinsics, depth against the PNGs, ground truth, static frames), and every kind
 // of bad input refused with a message naming what is wrong, leaving no bag behind and an existing
 // one untouched. Runs the tool itself; no roscore.
-// Still to come with evaluate_bag (issue 11): track this bag and check its ATE against
-// shared/tools/eval_traj.py on the trajectory it writes.
+// The teddy bag tracked by evaluate_bag and its ATE checked against shared/tools/eval_traj.py:
+// test_evaluate_bag (EvaluateBagTum).
 #include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
@@ -185,7 +185,7 @@ TEST(TumToBag, TeddyReadsBackAsWritten) {
   ASSERT_EQ(infos.size(), frames.size());
   for (std::size_t i = 0; i < infos.size(); ++i) {
     EXPECT_EQ(infos[i]->header.stamp, images[i]->header.stamp) << i;
-    const PinholeIntrinsics k = tum_bag::intrinsicsOf(*infos[i]);
+    const PinholeIntrinsics k = conv::intrinsicsFromCameraInfo(*infos[i]);
     EXPECT_EQ(k.width, 640);
     EXPECT_EQ(k.height, 480);
     EXPECT_DOUBLE_EQ(k.fx, 535.4);
@@ -203,7 +203,7 @@ TEST(TumToBag, TeddyReadsBackAsWritten) {
   for (std::size_t i = 0; i < poses.size(); ++i) {
     EXPECT_EQ(poses[i]->header.frame_id, tum_bag::kMapFrame);
     EXPECT_NEAR(poses[i]->header.stamp.toSec(), gt[i].stamp_s, 1e-6);
-    const Eigen::Isometry3d T = tum_bag::isometryOf(poses[i]->pose);
+    const Eigen::Isometry3d T = conv::fromPoseMsg(poses[i]->pose);
     EXPECT_LT((T.translation() - gt[i].T_W_C.translation()).norm(), 1e-12) << i;
     EXPECT_LT((T.linear() - gt[i].T_W_C.linear()).norm(), 1e-9) << i;
     gt_stamps.push_back(poses[i]->header.stamp.toSec());
@@ -341,8 +341,8 @@ TEST(TumToBag, AsksForIntrinsicsAndSuggestsTheCamera) {
   ASSERT_EQ(r.rc, 0) << r.output;
   const auto infos = readTopic<sensor_msgs::CameraInfo>(out, tum_bag::kInfoTopic);
   ASSERT_EQ(infos.size(), 2u);
-  EXPECT_DOUBLE_EQ(tum_bag::intrinsicsOf(*infos[0]).fy, 501.0);
-  EXPECT_DOUBLE_EQ(tum_bag::intrinsicsOf(*infos[0]).cy, 200.0);
+  EXPECT_DOUBLE_EQ(conv::intrinsicsFromCameraInfo(*infos[0]).fy, 501.0);
+  EXPECT_DOUBLE_EQ(conv::intrinsicsFromCameraInfo(*infos[0]).cy, 200.0);
 }
 
 TEST(TumToBag, KeepsAnExistingBag) {

@@ -11,8 +11,8 @@
 //                              truth, camera-to-world) at the ground truth's own stamps (100 Hz)
 //   /tf_static                 base_link -> camera_link -> camera_depth_optical_frame (latched)
 //
-// Message conversions the tool needs live here until the node graph brings depth_track's one
-// conversions header.
+// Poses and transforms go through the graph's conversions (depth_track/ros/conversions.hpp);
+// the CameraInfo of given intrinsics, which those do not offer, is written here.
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/message_traits.h>
@@ -27,6 +27,7 @@
 #include <string>
 
 #include "depth_track/core/camera.hpp"
+#include "depth_track/ros/conversions.hpp"
 
 namespace depth_track {
 namespace tum_bag {
@@ -80,57 +81,17 @@ inline sensor_msgs::CameraInfo cameraInfoMsg(const PinholeIntrinsics& K, const r
   return ci;
 }
 
-/// The pinhole intrinsics of a CameraInfo (from K; distortion is not modelled by the core).
-inline PinholeIntrinsics intrinsicsOf(const sensor_msgs::CameraInfo& ci) {
-  PinholeIntrinsics k;
-  k.width = static_cast<int>(ci.width);
-  k.height = static_cast<int>(ci.height);
-  k.fx = ci.K[0], k.cx = ci.K[2], k.fy = ci.K[4], k.cy = ci.K[5];
-  return k;
-}
-
-/// T_parent_child as geometry_msgs/TransformStamped.
-inline geometry_msgs::TransformStamped transformMsg(const ros::Time& stamp,
-                                                    const std::string& parent,
-                                                    const std::string& child,
-                                                    const Eigen::Isometry3d& T) {
+/// T_parent_child as a stamped tf message.
+inline geometry_msgs::TransformStamped transformStamped(const ros::Time& stamp,
+                                                        const std::string& parent,
+                                                        const std::string& child,
+                                                        const Eigen::Isometry3d& T) {
   geometry_msgs::TransformStamped m;
   m.header.stamp = stamp;
   m.header.frame_id = parent;
   m.child_frame_id = child;
-  m.transform.translation.x = T.translation().x();
-  m.transform.translation.y = T.translation().y();
-  m.transform.translation.z = T.translation().z();
-  const Eigen::Quaterniond q(T.rotation());
-  m.transform.rotation.x = q.x();
-  m.transform.rotation.y = q.y();
-  m.transform.rotation.z = q.z();
-  m.transform.rotation.w = q.w();
+  m.transform = conv::toTransformMsg(T);
   return m;
-}
-
-/// Pose T_frame_body as geometry_msgs/PoseStamped in `frame_id`.
-inline geometry_msgs::PoseStamped poseMsg(const ros::Time& stamp, const std::string& frame_id,
-                                          const Eigen::Isometry3d& T) {
-  const geometry_msgs::TransformStamped tf = transformMsg(stamp, frame_id, "", T);
-  geometry_msgs::PoseStamped p;
-  p.header = tf.header;
-  p.pose.position.x = tf.transform.translation.x;
-  p.pose.position.y = tf.transform.translation.y;
-  p.pose.position.z = tf.transform.translation.z;
-  p.pose.orientation = tf.transform.rotation;
-  return p;
-}
-
-/// The pose of a geometry_msgs/Pose as an isometry (quaternion normalised).
-inline Eigen::Isometry3d isometryOf(const geometry_msgs::Pose& p) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() =
-      Eigen::Quaterniond(p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z)
-          .normalized()
-          .toRotationMatrix();
-  T.translation() = Eigen::Vector3d(p.position.x, p.position.y, p.position.z);
-  return T;
 }
 
 }  // namespace tum_bag

@@ -205,9 +205,9 @@ int run(int argc, char** argv) {
     T_L_O.linear() = rotationBodyFromOptical();
     // A hand-held camera: base_link is the camera body itself.
     st.transforms = {
-        tum_bag::transformMsg(ros::Time(t0), "base_link", "camera_link",
-                              Eigen::Isometry3d::Identity()),
-        tum_bag::transformMsg(ros::Time(t0), "camera_link", tum_bag::kOpticalFrame, T_L_O)};
+        tum_bag::transformStamped(ros::Time(t0), "base_link", "camera_link",
+                                  Eigen::Isometry3d::Identity()),
+        tum_bag::transformStamped(ros::Time(t0), "camera_link", tum_bag::kOpticalFrame, T_L_O)};
     auto hdr = tum_bag::connectionHeader<tf2_msgs::TFMessage>(kCaller, {{"latching", "1"}});
     bag.write(tum_bag::kTfStaticTopic, ros::Time(t0), st, hdr);
   }
@@ -221,8 +221,11 @@ int run(int argc, char** argv) {
   while (fi < frames.size() || gi < gt.size()) {
     if (gi < gt.size() && (fi == frames.size() || gt[gi].stamp_s < frames[fi].stamp_s)) {
       const ros::Time t(gt[gi].stamp_s);
-      auto pose = tum_bag::poseMsg(t, tum_bag::kMapFrame, gt[gi].T_W_C);
-      pose.header.seq = static_cast<uint32_t>(gi++);
+      geometry_msgs::PoseStamped pose;
+      pose.header.stamp = t;
+      pose.header.frame_id = tum_bag::kMapFrame;
+      pose.header.seq = static_cast<uint32_t>(gi);
+      pose.pose = conv::toPoseMsg(gt[gi++].T_W_C);
       bag.write(tum_bag::kGroundTruthTopic, t, pose, pose_hdr);
       continue;
     }
