@@ -48,6 +48,8 @@ PACKAGES=(
   # tests, benchmarks, fuzzing, serial ptys, evaluation
   libgtest-dev googletest libbenchmark-dev clang-14 libclang-rt-14-dev libfuzzer-14-dev socat
   python3-numpy python3-scipy python3-matplotlib
+  # peer libraries of the side-by-side benchmark (depth_track/bench/peers; built when present)
+  libopen3d-dev libpcl-dev
 )
 
 if [ "$INSTALL" = 1 ]; then
