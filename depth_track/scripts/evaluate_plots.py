@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Plots of an evaluate_bag run (the files `evaluate_bag --out-dir DIR` writes).
 
-    /usr/bin/python3 evaluate_plots.py DIR [--label NAME]
+    /usr/bin/python3 evaluate_plots.py DIR [--label NAME] [--out OUTDIR --prefix P --dpi N]
+                                           [--only tracking,map_views,...]
 
-Writes into DIR:
+Writes into DIR (or OUTDIR, names prefixed with P):
   tracking.png     the thesis's tracking figure: per axis (pitch, yaw, roll angles; sway, heave,
                    surge positions) the tracked value against the references (rig sensors, ground
                    truth), and beneath each the error (tracked - reference)
@@ -46,10 +47,13 @@ def read_csv(path):
     return cols
 
 
+OUTPUT = {"prefix": "", "dpi": 100}
+
+
 def save(fig, outdir, name, written):
     fig.tight_layout()
-    path = os.path.join(outdir, name)
-    fig.savefig(path, dpi=100)
+    path = os.path.join(outdir, OUTPUT["prefix"] + name)
+    fig.savefig(path, dpi=OUTPUT["dpi"])
     plt.close(fig)
     written.append(path)
 
@@ -189,7 +193,16 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("dir")
     ap.add_argument("--label", default="")
+    ap.add_argument("--out", help="write the PNGs here instead of DIR")
+    ap.add_argument("--prefix", default="", help="prefix of the PNG names")
+    ap.add_argument("--dpi", type=int, default=100)
+    ap.add_argument("--only", default="", help="comma-separated plot names (default: all)")
     a = ap.parse_args()
+    OUTPUT["prefix"], OUTPUT["dpi"] = a.prefix, a.dpi
+    out = a.out or a.dir
+    os.makedirs(out, exist_ok=True)
+    only = set(x for x in a.only.split(",") if x)
+    want = (lambda name: not only or name in only)
     frames_csv = os.path.join(a.dir, "frames.csv")
     if not os.path.exists(frames_csv):
         print("evaluate_plots: %s not found" % frames_csv, file=sys.stderr)
@@ -201,13 +214,16 @@ def main():
         return 2
     t = c["stamp_s"] - c["stamp_s"][0]
     written = []
-    tracking(c, t, a.dir, label, written)
-    frame_time(c, t, a.dir, label, written)
-    matches(c, t, a.dir, label, written)
-    if os.path.exists(os.path.join(a.dir, "latency.csv")):
-        latency(os.path.join(a.dir, "latency.csv"), a.dir, label, written)
-    if os.path.exists(os.path.join(a.dir, "map_voxels.f32")):
-        map_views(os.path.join(a.dir, "map_voxels.f32"), a.dir, label, written)
+    if want("tracking"):
+        tracking(c, t, out, label, written)
+    if want("frame_time"):
+        frame_time(c, t, out, label, written)
+    if want("matches"):
+        matches(c, t, out, label, written)
+    if want("latency") and os.path.exists(os.path.join(a.dir, "latency.csv")):
+        latency(os.path.join(a.dir, "latency.csv"), out, label, written)
+    if want("map_views") and os.path.exists(os.path.join(a.dir, "map_voxels.f32")):
+        map_views(os.path.join(a.dir, "map_voxels.f32"), out, label, written)
     for w in written:
         print("evaluate_plots: wrote %s" % w)
     return 0

@@ -8,8 +8,8 @@
 //
 // Writes into --out-dir: trajectory.txt (TUM, camera-to-world), frames.csv (per frame: tracked,
 // reference and error per angle and axis, ICP error, matches, ms per stage), reference_*.txt
-// (each reference at its own stamps, TUM), latency.csv, link_timing.csv, report.txt (what is
-// printed), map_voxels.f32 (with a map) and, with --plots, PNGs made by
+// (each reference at its own stamps, TUM), scores.csv, latency.csv, link_timing.csv, report.txt
+// (what is printed), map_voxels.f32 (with a map) and, with --plots, PNGs made by
 // scripts/evaluate_plots.py. Last line:
 //   frames=N tracked=M ate_rmse_m=X max_err_deg=a,b,c max_err_mm=x,y,z median_ms=T
 #include <unistd.h>
@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -123,8 +124,16 @@ struct FrameRecord {
   double error_rms_m = 0.0;
   bool keyframe = false, loop_attempted = false, loop_accepted = false;
   double ms_decode = 0, ms_prefilter = 0, ms_reduce = 0, ms_register = 0, ms_track = 0, ms_map = 0;
+  double cpu_ms = 0;  ///< process CPU time of tracking + mapping (all threads)
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
 };
+
+/// Process CPU time, ms: on a shared machine the wall clock of a frame is mostly other work.
+double cpuMs() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return 1e3 * t.tv_sec + 1e-6 * t.tv_nsec;
+}
 
 std::string csvText(std::string s) {
   for (char& c : s)
@@ -148,7 +157,7 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
                           "errRy", "errRz", "errDx", "errDy", "errDz"})
       out << "," << p << "_" << c;
   out << ",icp_error_mm,cells,matches,fm_matches,iterations,keyframe,loop_attempted,loop_accepted,"
-         "ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,ms_frame,failure\n";
+         "ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,ms_frame,cpu_ms,failure\n";
   // Per reference: frame index -> its row of errors.
   std::vector<std::vector<const FrameError*>> by_frame(
       run.scores.size(), std::vector<const FrameError*>(frames.size()));
@@ -182,12 +191,38 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
       out << buf;
     }
     std::snprintf(
-        buf, sizeof(buf), ",%.4f,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
+        buf, sizeof(buf), ",%.4f,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
         1000.0 * f.error_rms_m, f.cells, f.matches, f.fm_matches, f.iterations, f.keyframe ? 1 : 0,
         f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.ms_decode, f.ms_prefilter, f.ms_reduce,
-        f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map);
+        f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map, f.cpu_ms);
     out << buf << csvText(f.failure) << "\n";
   }
+}
+
+/// scores.csv: one row per reference that scores (and the sensors against ground truth), for
+/// scripts (scripts/make_results.py).
+void writeScoresCsv(const std::string& path, const RunEvaluation& run) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error("cannot write " + path);
+  out << "reference,role,frames,errTx,errTy,errTz,errDx,errDy,errDz,euler_x,euler_y,euler_z,"
+         "ate_rmse_m,ate_max_m,rpe_1f_m,rpe_1f_deg,rpe_1s_m,rpe_1s_deg,end_drift_mm\n";
+  const auto row = [&out](const ReferenceScore& s, const std::string& role) {
+    if (!s.evaluation) return;
+    const TrajectoryEvaluation& e = *s.evaluation;
+    const ThesisErrors& t = e.thesis;
+    out << fmt(
+        "\"%s\",%s,%zu,%.5f,%.5f,%.5f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.6f,%.6f,%.6f,%.5f,"
+        "%.6f,%.5f,%.4f\n",
+        s.name.c_str(), role.c_str(), t.frames, t.max_err_deg.x(), t.max_err_deg.y(),
+        t.max_err_deg.z(), t.max_err_mm.x(), t.max_err_mm.y(), t.max_err_mm.z(),
+        t.max_euler_err_deg.x(), t.max_euler_err_deg.y(), t.max_euler_err_deg.z(),
+        e.standard.ate_rmse_m, e.standard.ate_max_m, e.standard.rpe_1f_m, e.standard.rpe_1f_deg,
+        e.rpe_1s.rms_m, e.rpe_1s.rms_deg, t.end_drift_mm);
+  };
+  for (std::size_t i = 0; i < run.scores.size(); ++i)
+    row(run.scores[i], std::string(run.scores[i].exact ? "ground_truth" : "sensors") +
+                           (static_cast<int>(i) == run.table ? "_table" : ""));
+  if (run.sensors_vs_truth) row(*run.sensors_vs_truth, "sensors_vs_ground_truth");
 }
 
 void writeLatencyCsv(const std::string& path, const RunEvaluation& run) {
@@ -508,6 +543,7 @@ int main(int argc, char** argv) {
           DepthImage depth = conv::depthFromMsg(*img, scale, range);
           applyDepthCorrection(depth, correction);
           f.ms_decode = msSince(t0);
+          const double cpu0 = cpuMs();
           const FrameStatus st = tracker.track(depth, stamp);
           f.tracked = st.tracked;
           f.failure = st.failure;
@@ -535,6 +571,7 @@ int main(int argc, char** argv) {
             }
             f.ms_map = msSince(tm);
           }
+          f.cpu_ms = cpuMs() - cpu0;
         } catch (const std::exception& e) {  // wrong encoding or size: flag the frame, go on
           ++bad_frames;
           if (first_bad.empty()) first_bad = fmt("message %zu: %s", index, e.what());
@@ -571,7 +608,7 @@ int main(int argc, char** argv) {
     std::size_t tracked = 0;
     std::map<std::string, int> failures;
     Trajectory est;
-    std::vector<double> ms_decode, ms_pre, ms_reduce, ms_reg, ms_track, ms_map, ms_frame;
+    std::vector<double> ms_decode, ms_pre, ms_reduce, ms_reg, ms_track, ms_map, ms_frame, cpu_frame;
     for (const FrameRecord& f : frames) {
       tracked += f.tracked;
       if (!f.tracked) failures[f.failure.substr(0, f.failure.find(':'))]++;
@@ -584,6 +621,7 @@ int main(int argc, char** argv) {
       ms_track.push_back(f.ms_track);
       if (mapper) ms_map.push_back(f.ms_map);
       ms_frame.push_back(f.ms_track + f.ms_map);
+      cpu_frame.push_back(f.cpu_ms);
     }
     for (const auto& [reason, n] : failures)
       report.line(fmt("flagged %d frames: %s", n, reason.c_str()));
@@ -596,7 +634,8 @@ int main(int argc, char** argv) {
                 stageLine("prefilter", ms_pre) + stageLine("cell reduction", ms_reduce) +
                 stageLine("registration", ms_reg) + stageLine("tracker (whole)", ms_track) +
                 stageLine("map (fusion + loop closure)", ms_map) +
-                stageLine("frame (tracker + map)", ms_frame));
+                stageLine("frame (tracker + map)", ms_frame) +
+                stageLine("frame, process CPU time", cpu_frame));
     if (mapper) report.line("map: " + mapper->summary());
 
     // ---- files ----
@@ -616,6 +655,7 @@ int main(int argc, char** argv) {
                                ") at the frames of " + bag_path);
       }
     writeFramesCsv(out_dir + "/frames.csv", frames, run);
+    writeScoresCsv(out_dir + "/scores.csv", run);
     if (run.latency || run.sensor_latency) writeLatencyCsv(out_dir + "/latency.csv", run);
     if (!links.empty()) {
       std::ofstream l(out_dir + "/link_timing.csv");

@@ -1,0 +1,816 @@
+#!/usr/bin/env python3
+"""Regenerates docs/results.md from the recorded runs, in four resumable steps.
+
+    /usr/bin/python3 depth_track/scripts/make_results.py [--jobs 2] [--page-only] [--no-peers]
+                                                         [--scenarios RT3 ...] [--frames N]
+
+1. Bags (skipped when present): every scenario of config/scenarios as bags/generate_bags.sh
+   writes it (L515 noise, bags/generated/<Scenario>.bag); a D435 variant of each
+   (bags/generated/d435/<Scenario>_D435.bag: the scenario file copied with `noise: d435`, fed to
+   make_scenario_bag); the TUM sequences of ../shared/data through tum_to_bag
+   (bags/generated/tum/<sequence>.bag).
+2. Runs: evaluate_bag on every bag for every configuration (the method / reference / prefilter /
+   loop-closure matrix below, and the thesis's own configurations of tables 5.3, 5.5 and 5.6),
+   each into bags/generated/results/<bag>/<config>/. A run is done when its report ends with the
+   summary line and its run.json names the same command and the same binaries (evaluate_bag and
+   the core libraries, by hash): a rebuilt tracker re-runs everything, an interrupted script
+   picks up where it stopped. Runs go niced (10), --jobs at a time.
+3. Peers (when dt_peers is built): dt_peers on TUM fr3/teddy, fr1/xyz and the rendered rt3, logs in
+   bags/generated/results/peers/.
+4. The page: docs/results.md beside the thesis's published tables, plots in docs/results/.
+
+--page-only writes the page from whatever has finished (missing runs are marked "not run").
+--scenarios / --frames restrict the bags and cut the runs (for trying the script; the page then
+says so).
+"""
+import argparse
+import concurrent.futures
+import csv
+import datetime
+import hashlib
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+DEVEL = os.path.join(ROOT, "devel")
+EVALUATE_BAG = os.path.join(DEVEL, "lib", "depth_track", "evaluate_bag")
+TUM_TO_BAG = os.path.join(DEVEL, "lib", "depth_track", "tum_to_bag")
+MAKE_SCENARIO_BAG = os.path.join(DEVEL, "lib", "rig_drivers", "make_scenario_bag")
+DT_PEERS = os.path.join(DEVEL, "lib", "depth_track", "dt_peers")
+PLOTS = os.path.join(ROOT, "depth_track", "scripts", "evaluate_plots.py")
+GENERATED = os.path.join(ROOT, "bags", "generated")
+RESULTS = os.path.join(GENERATED, "results")
+PAGE = os.path.join(ROOT, "docs", "results.md")
+PAGE_PLOTS = os.path.join(ROOT, "docs", "results")
+SCENARIOS = ["XTest1_05_Chair", "RT1", "RT2", "RT3", "RT4", "RT5", "RT6", "Chair3", "Room3",
+             "Hall1"]
+RT = ["RT1", "RT2", "RT3", "RT4", "RT5", "RT6"]
+TUM = {"tum_fr3_teddy": "fr3", "tum_fr1_xyz": "fr1"}
+
+
+def shared_data():
+    for d in (os.path.join(ROOT, "..", "shared", "data"), "/work/shared/data"):
+        if os.path.isdir(d):
+            return os.path.abspath(d)
+    return None
+
+
+# ---- the thesis's published tables (ch. 5; angles in degrees, positions in mm) -------------------
+AXES = ("errTx", "errTy", "errTz", "errDx", "errDy", "errDz")
+# Table 5.3, XTest1_05_Chair (ServoTrack mode 2), CellX = 4.
+THESIS_5_3 = {
+    "t53_p2p_fr1": ("P2P, FR=1, PreFilter=0", (0.90, 1.21, 0.17, 45.3, 43.2, 12.2)),
+    "t53_p2l_fr1": ("P2L, FR=1, PreFilter=0", (0.43, 0.90, 0.22, 17.4, 7.4, 9.8)),
+    "t53_p2l_fr1_bil": ("P2L, FR=1, PreFilter=1", (0.75, 0.93, 0.26, 40.5, 30.8, 9.6)),
+    "t53_p2l_fr4": ("P2L, FR=4, PreFilter=0", (0.65, 0.93, 1.27, 30.5, 31.0, 6.2)),
+    "t53_cs_fr4": ("P2LCS, FR=4, PreFilter=0", (0.56, 0.92, 0.86, 27.0, 20.0, 6.4)),
+}
+# Table 5.5, P2L with CellX = 5, ICPFrames = 5, PreFilter = 1.
+THESIS_5_5 = {
+    "RT1": (0.98, 1.32, 0.50, 17.64, 14.98, 6.79),
+    "RT2": (1.02, 1.52, 0.95, 15.16, 12.01, 24.94),
+    "RT3": (3.314, 2.73178, 1.59383, 21.96, 42.45, 84.04),
+    "RT4": (1.03, 1.80, 0.55, 23.08, 13.39, 8.76),
+    "RT5": (0.83, 2.28, 1.08, 22.29, 17.92, 16.11),
+    "RT6": (2.06494, 2.04345, 1.87773, 31.59, 22.09, 12.44),
+}
+# Table 5.6, Cell Search with CellX = 5, ICPFrames = 5, FMThresh = 2 (positions printed in metres
+# there, in mm here).
+THESIS_5_6 = {
+    "RT1": (1.1274, 1.8015, 0.5557, 13.66, 6.32, 8.30),
+    "RT2": (1.26207, 1.45012, 1.05537, 24.15, 8.74, 25.73),
+    "RT3": (3.3774, 2.2364, 1.98583, 11.46, 46.28, 88.75),
+    "RT4": (1.21097, 1.73829, 0.75456, 27.24, 20.83, 11.84),
+    "RT5": (1.2328, 1.72696, 0.87185, 18.49, 7.12, 16.05),
+    "RT6": (1.99188, 1.8981, 0.96857, 49.26, 28.28, 11.83),
+}
+SERVO_INPUT = {"RT1": "none", "RT2": "10 deg yaw", "RT3": "20 deg pitch", "RT4": "none",
+               "RT5": "15 deg yaw", "RT6": "15 deg pitch"}
+
+
+# ---- bags -------------------------------------------------------------------------------------------
+def bags_wanted(scenarios, tum=True):
+    """(name, path, scenario, noise, kind) for every bag the page uses."""
+    out = []
+    for s in scenarios:
+        kind = "xtest" if s.startswith("XTest") else "rt" if s in RT else "truck"
+        out.append((s, os.path.join(GENERATED, s + ".bag"), s, "l515", kind))
+        out.append((s + "_D435", os.path.join(GENERATED, "d435", s + "_D435.bag"), s, "d435", kind))
+    for seq in TUM if tum else []:
+        out.append((seq, os.path.join(GENERATED, "tum", seq + ".bag"), seq, "kinect", "tum"))
+    return out
+
+
+def log(msg):
+    print("make_results: " + msg, flush=True)
+
+
+def niced(cmd):
+    return ["nice", "-n", "10"] + cmd
+
+
+def make_bags(bags, jobs):
+    os.makedirs(os.path.join(GENERATED, "d435", "scenarios"), exist_ok=True)
+    os.makedirs(os.path.join(GENERATED, "tum"), exist_ok=True)
+    l515 = [b[2] for b in bags if b[3] == "l515" and not os.path.exists(b[1])]
+    if l515:
+        # Into a side folder first: a bag cut short by an interruption never looks finished.
+        log("generating L515 bags with bags/generate_bags.sh: " + " ".join(l515))
+        part = os.path.join(GENERATED, "part_l515")
+        shutil.rmtree(part, ignore_errors=True)
+        env = dict(os.environ, JOBS=str(jobs))
+        subprocess.run(niced([os.path.join(ROOT, "bags", "generate_bags.sh"), part] + l515),
+                       check=True, env=env)
+        for s in l515:
+            os.replace(os.path.join(part, s + ".bag"), os.path.join(GENERATED, s + ".bag"))
+    for name, path, scenario, noise, kind in bags:
+        if os.path.exists(path) or noise == "l515":
+            continue
+        if kind == "tum":
+            data = shared_data()
+            folder = data and os.path.join(data, scenario)
+            if not folder or not os.path.isdir(folder):
+                log("%s: no TUM folder (shared/data/%s): left out" % (name, scenario))
+                continue
+            log("tum_to_bag %s -> %s" % (folder, path))
+            subprocess.run(niced([TUM_TO_BAG, folder, path + ".part.bag", "--camera",
+                                  TUM[scenario]]), check=True)
+            os.replace(path + ".part.bag", path)
+            continue
+        # D435: the scenario as it is, with the stereo camera's noise model.
+        with open(os.path.join(ROOT, "config", "scenarios", scenario + ".yaml")) as f:
+            text = f.read()
+        if not re.search(r"^noise:\s*\S+", text, re.M):
+            raise SystemExit("make_results: %s.yaml has no noise: line to override" % scenario)
+        text = re.sub(r"^noise:\s*\S+", "noise: d435", text, count=1, flags=re.M)
+        text = re.sub(r"^name:\s*(\S+)", r"name: \1_D435", text, count=1, flags=re.M)
+        yaml_path = os.path.join(GENERATED, "d435", "scenarios", scenario + "_D435.yaml")
+        with open(yaml_path, "w") as f:
+            f.write("# %s.yaml with the D435 noise model (make_results.py)\n" % scenario + text)
+        tmp = os.path.join(GENERATED, "d435", "part")
+        os.makedirs(tmp, exist_ok=True)
+        log("make_scenario_bag %s (D435 noise)" % scenario)
+        subprocess.run(niced([MAKE_SCENARIO_BAG, "--scenario", yaml_path, "--out-dir", tmp,
+                              "--compression", "lz4", "--threads", "1"]), check=True)
+        os.replace(os.path.join(tmp, scenario + "_D435.bag"), path)
+
+
+# ---- configurations --------------------------------------------------------------------------------
+METHODS = (("p2p", "p2p"), ("p2l", "p2l"), ("cell_search", "cs"))
+# The prefilter of the matrix is the separable bilateral (~12 ms of CPU per frame; the D435 preset's);
+# the thesis's configurations use its full 31x31 kernel (~90 ms per frame here).
+SEPARABLE = ["--prefilter", "bilateral", "--bilateral-mode", "separable"]
+FULL = ["--prefilter", "bilateral", "--bilateral-mode", "full"]
+NONE = ["--prefilter", "none"]
+
+
+def default_config(noise):
+    """The tracker's defaults with the camera's preset (D435: its separable bilateral)."""
+    return "p2l_adaptive_bil" if noise == "d435" else "p2l_adaptive_nopf"
+
+
+def configs(kind, noise):
+    """config name -> evaluate_bag options, for one bag."""
+    base = []
+    if noise == "d435":
+        base = ["--config", os.path.join(ROOT, "config", "d435.yaml")]
+    elif noise == "kinect":
+        base = ["--config", os.path.join(ROOT, "config", "tum_kinect.yaml")]
+    fixed = 4 if kind == "xtest" else 5
+    c = {}
+    for method, key in METHODS:
+        for ref in ("adaptive", "fixed"):
+            for pf, pf_args in (("nopf", NONE), ("bil", SEPARABLE)):
+                args = base + ["--method", method] + pf_args
+                if ref == "fixed":
+                    args += ["--icp-frames", str(1 if method == "p2p" else fixed)]
+                c["%s_%s_%s" % (key, ref, pf)] = args
+    lc_pf = SEPARABLE if noise == "d435" else NONE
+    for method, key in METHODS[1:]:
+        c["%s_adaptive_lc" % key] = base + ["--method", method, "--loop-closure", "on"] + lc_pf
+    if kind == "xtest":  # table 5.3: CellX = 4
+        t = {"t53_p2p_fr1": ("p2p", 1, NONE), "t53_p2l_fr1": ("p2l", 1, NONE),
+             "t53_p2l_fr1_bil": ("p2l", 1, FULL), "t53_p2l_fr4": ("p2l", 4, NONE),
+             "t53_cs_fr4": ("cell_search", 4, NONE)}
+        for name, (m, fr, pf) in t.items():
+            c[name] = base + ["--method", m, "--icp-frames", str(fr), "--cell-size", "4"] + pf
+    if kind == "rt":  # tables 5.5 and 5.6 (FMThresh = 2)
+        c["t55_p2l_fr5_bil"] = base + ["--method", "p2l", "--icp-frames", "5"] + FULL
+        for key, pf in (("nopf", NONE), ("bil", FULL)):
+            c["t56_cs_fr5_" + key] = base + ["--method", "cell_search", "--icp-frames", "5",
+                                             "--fm-thresh", "2"] + pf
+    return c
+
+
+def describe(config):
+    """Words for a configuration name."""
+    if config.startswith("t53_"):
+        return THESIS_5_3[config][0] + ", CellX=4 (thesis table 5.3)"
+    if config.startswith("t55_"):
+        return "P2L, FR=5, full bilateral (thesis table 5.5)"
+    if config.startswith("t56_"):
+        return "Cell Search, FR=5, FMThresh=2, %s (thesis table 5.6)" % (
+            "full bilateral" if config.endswith("bil") else "no prefilter")
+    method, ref, extra = config.split("_")
+    words = {"p2p": "P2P", "p2l": "P2L", "cs": "Cell Search"}[method]
+    words += ", " + ("adaptive reference" if ref == "adaptive" else "fixed reference")
+    words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure"}[extra]
+    return words
+
+
+# ---- runs ----------------------------------------------------------------------------------------
+_hash_cache = {}
+
+
+def binaries_hash():
+    if "h" not in _hash_cache:
+        h = hashlib.sha1()
+        for p in [EVALUATE_BAG] + sorted(
+                os.path.join(DEVEL, "lib", f) for f in os.listdir(os.path.join(DEVEL, "lib"))
+                if f.startswith("libdepth_track_") and f.endswith(".so")):
+            with open(p, "rb") as f:
+                h.update(f.read())
+        _hash_cache["h"] = h.hexdigest()
+    return _hash_cache["h"]
+
+
+def run_key(cmd, bag):
+    st = os.stat(bag)
+    return {"cmd": cmd, "binaries": binaries_hash(), "bag": [st.st_size, int(st.st_mtime)]}
+
+
+def final_line(path):
+    try:
+        with open(path) as f:
+            lines = [l for l in f.read().splitlines() if l.strip()]
+    except OSError:
+        return None
+    return lines[-1] if lines and lines[-1].startswith("frames=") else None
+
+
+def run_done(out, key):
+    try:
+        with open(os.path.join(out, "run.json")) as f:
+            return json.load(f) == key and final_line(os.path.join(out, "report.txt")) is not None
+    except (OSError, ValueError):
+        return False
+
+
+_print_lock = threading.Lock()
+
+
+def evaluate(job):
+    name, bag, config, args, frames, plots = job
+    out = os.path.join(RESULTS, name, config)
+    cmd = [EVALUATE_BAG, bag, "--out-dir", out, "--quiet", "--label", "%s %s" % (name, config)]
+    cmd += args + (["--frames", str(frames)] if frames else []) + (["--plots"] if plots else [])
+    key = run_key(cmd, bag)
+    if run_done(out, key):
+        return name, config, "done before"
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "stdout.txt"), "w") as f:
+        rc = subprocess.run(niced(cmd), stdout=f, stderr=subprocess.STDOUT).returncode
+    line = final_line(os.path.join(out, "report.txt"))
+    if line is not None:
+        with open(os.path.join(out, "run.json"), "w") as f:
+            json.dump(key, f)
+    with _print_lock:
+        log("%-22s %-22s rc=%d %s" % (name, config, rc, line or "(no summary line)"))
+    return name, config, line
+
+
+def run_all(bags, jobs, frames):
+    order = []
+    for name, path, scenario, noise, kind in bags:
+        if not os.path.exists(path):
+            continue
+        for config, args in configs(kind, noise).items():
+            # The defaults and the thesis's configurations first: the page is useful early.
+            default = config == default_config(noise)
+            rank = 0 if default else 1 if config.startswith("t5") else 2
+            order.append((rank, (name, path, config, args, frames, default)))
+    order.sort(key=lambda x: x[0])
+    log("%d runs (%d jobs at a time)" % (len(order), jobs))
+    with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+        for fut in concurrent.futures.as_completed([pool.submit(evaluate, j) for _, j in order]):
+            fut.result()
+
+
+def run_peers():
+    if not os.path.exists(DT_PEERS):
+        log("dt_peers is not built (libopen3d-dev / libpcl-dev): peers left out")
+        return
+    data = shared_data()
+    out = os.path.join(RESULTS, "peers")
+    os.makedirs(out, exist_ok=True)
+    inputs = [("tum_fr3_teddy", ["--tum", os.path.join(data, "tum_fr3_teddy"), "--camera", "fr3"]),
+              ("tum_fr1_xyz", ["--tum", os.path.join(data, "tum_fr1_xyz"), "--camera", "fr1"]),
+              ("rt3_l515", ["--render", "rt3", "--noise", "l515"])]
+    for label, args in inputs:
+        logf = os.path.join(out, label + ".log")
+        if os.path.exists(logf) and peers_table(logf):
+            continue
+        log("dt_peers " + " ".join(args))
+        with open(logf + ".part", "w") as f:
+            subprocess.run(niced([DT_PEERS] + args + ["--out-dir", out]), stdout=f,
+                           stderr=subprocess.DEVNULL)
+        os.replace(logf + ".part", logf)
+
+
+def peers_table(path):
+    """method -> dict of dt_peers' summary table."""
+    rows = {}
+    try:
+        with open(path) as f:
+            for line in f:
+                p = line.split()
+                if len(p) >= 8 and p[1].isdigit():
+                    try:
+                        rows[p[0]] = {"frames": int(p[1]), "ate": float(p[2]),
+                                      "med_ms": float(p[4]), "cpu_ms": float(p[7])}
+                    except ValueError:
+                        pass
+    except OSError:
+        pass
+    return rows
+
+
+# ---- reading a run --------------------------------------------------------------------------------
+def read_run(name, config):
+    out = os.path.join(RESULTS, name, config)
+    line = final_line(os.path.join(out, "report.txt"))
+    if line is None:
+        return None
+    r = {"line": line, "dir": out}
+    for key in ("frames", "tracked"):
+        r[key] = int(re.search(key + r"=(\d+)", line).group(1))
+    r["median_ms"] = float(re.search(r"median_ms=(\S+)", line).group(1))
+    r["scores"] = {}
+    try:
+        with open(os.path.join(out, "scores.csv")) as f:
+            for row in csv.DictReader(f):
+                r["scores"][row["role"].replace("_table", "")] = {
+                    k: (float(v) if k not in ("reference", "role") else v) for k, v in row.items()}
+    except OSError:
+        pass
+    cpu = []
+    try:
+        with open(os.path.join(out, "frames.csv")) as f:
+            for row in csv.DictReader(f):
+                try:
+                    if float(row["ms_track"]) > 0:
+                        cpu.append(float(row["cpu_ms"]))
+                except (KeyError, ValueError):
+                    pass
+    except OSError:
+        pass
+    r["cpu_ms"] = sorted(cpu)[len(cpu) // 2] if cpu else math.nan
+    r["latency"] = {}  # against -> (best shift by rotation, best shift by position)
+    try:
+        with open(os.path.join(out, "latency.csv")) as f:
+            rows = list(csv.DictReader(f))
+        for who in ("tracked", "ground_truth"):
+            sel = [x for x in rows if x["against"] == who]
+            # Ties go to the smaller shift, as in evaluate_bag.
+            best = lambda key: int(min(sel, key=lambda x: (float(x[key]),
+                                                           abs(int(x["shift_frames"]))))["shift_frames"])
+            if sel:
+                r["latency"][who] = (best("rms_rot_deg"), best("rms_pos_mm"))
+    except OSError:
+        pass
+    return r
+
+
+def axes_of(score, euler=False):
+    if score is None:
+        return None
+    rot = ("euler_x", "euler_y", "euler_z") if euler else ("errTx", "errTy", "errTz")
+    return tuple(score[k] for k in rot) + tuple(score[k] for k in ("errDx", "errDy", "errDz"))
+
+
+# ---- the page -------------------------------------------------------------------------------------
+def f3(v):
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.3f" % v
+
+
+def f2(v):
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.2f" % v
+
+
+def f1(v):
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.1f" % v
+
+
+def axes_cells(v):
+    if v is None:
+        return "| — " * 6
+    return "".join("| %s " % (f3(x) if i < 3 else f2(x)) for i, x in enumerate(v))
+
+
+def git(*args):
+    try:
+        return subprocess.run(["git", "-C", ROOT] + list(args), capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+
+
+def copy_plots(name, config, label):
+    run_dir = os.path.join(RESULTS, name, config)
+    if not os.path.exists(os.path.join(run_dir, "frames.csv")):
+        return []
+    os.makedirs(PAGE_PLOTS, exist_ok=True)
+    prefix = "%s_" % name
+    subprocess.run(["/usr/bin/python3", PLOTS, run_dir, "--out", PAGE_PLOTS, "--prefix", prefix,
+                    "--dpi", "55", "--only", "tracking,map_views", "--label", label],
+                   stdout=subprocess.DEVNULL, check=False)
+    return [p for p in (prefix + "tracking.png", prefix + "map_views.png")
+            if os.path.exists(os.path.join(PAGE_PLOTS, p))]
+
+
+def write_page(bags, args):
+    runs = {}
+    for name, path, scenario, noise, kind in bags:
+        for config in configs(kind, noise):
+            runs[(name, config)] = read_run(name, config)
+    done = sum(1 for v in runs.values() if v)
+    L = []
+    w = L.append
+    head = git("rev-parse", "--short", "HEAD")
+    dirty = " (with uncommitted changes)" if git("status", "--porcelain", "--untracked-files=no") else ""
+    w("# Results: every recorded run, scored")
+    w("")
+    w("Generated by `/usr/bin/python3 depth_track/scripts/make_results.py` (one script: it makes the "
+      "bags, runs `evaluate_bag` on each for every configuration, and writes this page) at commit "
+      "`%s`%s on %s; %d of %d runs finished.%s" % (
+          head, dirty, datetime.date.today().isoformat(), done, len(runs),
+          " **Runs cut to %d frames (a trial of the script, not results).**" % args.frames
+          if args.frames else ""))
+    w("")
+    w("How to read it:")
+    w("- **Two references.** The thesis scored its tracker against the rig's own sensors "
+      "(track position and gimbal pots through the rig's kinematics). Our bags come from the rig "
+      "simulator, which also records the exact camera pose, so every run is scored against both: "
+      "*vs GT* (ground truth, exact) and *vs sensors* (the thesis's method; it includes the "
+      "simulated sensors' own errors: pot calibration, ADC steps, link latency, stick-slip). The "
+      "row *sensors vs GT* shows that floor: no tracker can score better than it against the "
+      "sensors.")
+    w("- **Columns** are the thesis's: maximum absolute error over the run, both trajectories "
+      "taken relative to their first pose; errTx/Ty/Tz pitch/yaw/roll in degrees (thesis Euler "
+      "angles, eq. 2.59, as its tables), errDx/Dy/Dz sway/heave/surge (camera x right, y down, z "
+      "ahead) in mm. ATE: RMSE after rigid alignment, m.")
+    w("- **Time**: `ms` is the median wall clock per frame of tracking (+ mapping where on) as "
+      "`evaluate_bag` prints it; `cpu` the median process CPU time of the same work. The machine "
+      "(2 cores) was shared with other builds and runs throughout (load 8-20), so the wall clock "
+      "is mostly waiting; the CPU time is what the code costs. One thread.")
+    w("- **Configurations**: P2P / P2L / Cell Search; *adaptive* reference (our default: new "
+      "keyframe after 0.10 m / 5 deg / half the cells lost) or *fixed* (the thesis's ICPFrames: "
+      "1 for P2P, 4 on XTest1, 5 elsewhere); bilateral prefilter or none (the matrix uses the "
+      "separable bilateral, ~12 ms of CPU per frame, as the D435 preset does; the thesis's own "
+      "configurations its full 31x31 kernel, ~90 ms); loop closure against the map. L515 bags use "
+      "the tracker defaults, D435 bags `config/d435.yaml` (whose default is the separable "
+      "bilateral), TUM bags `config/tum_kinect.yaml`, each with the configuration's options on "
+      "top.")
+    w("- **D435 bags** were made from the scenario files with `noise: d435` (the scenario's own "
+      "noise field), same seed, same motion.")
+    w("")
+
+    def row_for(name, config, role="ground_truth", euler=True):
+        r = runs.get((name, config))
+        return axes_of(r["scores"].get(role) if r else None, euler)
+
+    # ---- targets
+    w("## Targets")
+    w("")
+    w("Issue 11: on every rendered RT scenario our best configuration beats the thesis's "
+      "published maximum errors by at least 3x on every axis. The thesis published two RT tables "
+      "(5.5, P2L; 5.6, Cell Search); the comparison takes, per axis, the smaller of the two. "
+      "*Best* = the configuration with the largest worst-axis ratio, among the L515 runs.")
+    w("")
+    w("| scenario | best configuration | worst-axis ratio vs GT | met (vs GT) | worst-axis ratio vs "
+      "sensors | met (vs sensors) |")
+    w("|---|---|---|---|---|---|")
+    target_rows = []
+    for s in RT:
+        thesis = [min(a, b) for a, b in zip(THESIS_5_5[s], THESIS_5_6[s])]
+        best = None
+        for config in configs("rt", "l515"):
+            r = runs.get((s, config))
+            if not r or r["tracked"] < r["frames"]:
+                continue
+            gt = row_for(s, config)
+            sens = row_for(s, config, "sensors")
+            if gt is None:
+                continue
+            ratio_gt = min(t / max(v, 1e-9) for t, v in zip(thesis, gt))
+            ratio_s = min(t / max(v, 1e-9) for t, v in zip(thesis, sens)) if sens else math.nan
+            if best is None or ratio_gt > best[1]:
+                best = (config, ratio_gt, ratio_s)
+        if best is None:
+            w("| %s | not run | | | | |" % s)
+            target_rows.append((s, None))
+            continue
+        target_rows.append((s, best))
+        w("| %s | %s | %.1f | %s | %.1f | %s |" % (
+            s, describe(best[0]), best[1], "yes" if best[1] >= 3 else "**no**", best[2],
+            "yes" if best[2] >= 3 else "**no**"))
+    w("")
+    peers = {k: peers_table(os.path.join(RESULTS, "peers", k + ".log"))
+             for k in ("tum_fr3_teddy", "tum_fr1_xyz", "rt3_l515")}
+    t = peers.get("tum_fr3_teddy") or {}
+    w("TUM fr3/teddy: our ATE at most 1/3 of Open3D's frame-to-frame point-to-plane ICP, our time "
+      "per frame at most 1/20 of it (from `dt_peers`, same frames, same process, CPU time):")
+    w("")
+    if t.get("open3d_p2l") and (t.get("ours_kinect") or t.get("ours")):
+        o3d = t["open3d_p2l"]
+        w("| ours | ATE (m) | ATE / Open3D's | met (<= 1/3) | CPU ms | time / Open3D's | met (<= "
+          "1/20) |")
+        w("|---|---|---|---|---|---|---|")
+        for k in ("ours", "ours_kinect"):
+            if k in t:
+                a = t[k]["ate"] / o3d["ate"]
+                c = t[k]["cpu_ms"] / o3d["cpu_ms"]
+                w("| %s | %.4f | %.2f | %s | %.2f | 1/%.0f | %s |" % (
+                    k, t[k]["ate"], a, "yes" if a <= 1 / 3 else "**no**", t[k]["cpu_ms"], 1 / c,
+                    "yes" if c <= 1 / 20 else "**no**"))
+        w("")
+        w("Open3D: ATE %.4f m, %.0f ms CPU per frame." % (o3d["ate"], o3d["cpu_ms"]))
+    else:
+        w("*Not measured in this run of the script: `dt_peers` was not built or its teddy run "
+          "has not finished.*")
+    w("")
+
+    # ---- table 5.3
+    w("## XTest1_05_Chair (ServoTrack mode 2) beside thesis table 5.3")
+    w("")
+    w("The thesis's five configurations (CellX = 4), run on our L515 bag; three rows each: the "
+      "thesis's published maxima, ours against the sensors, ours against ground truth.")
+    w("")
+    w("| configuration | | errTx | errTy | errTz | errDx | errDy | errDz |")
+    w("|---|---|---|---|---|---|---|---|")
+    worse = []
+    for config, (label, thesis) in THESIS_5_3.items():
+        w("| %s | thesis %s|" % (label, axes_cells(thesis)))
+        sens = row_for("XTest1_05_Chair", config, "sensors")
+        gt = row_for("XTest1_05_Chair", config)
+        w("| | ours vs sensors %s|" % axes_cells(sens))
+        w("| | ours vs GT %s|" % axes_cells(gt))
+        for who, v in (("vs sensors", sens), ("vs GT", gt)):
+            if v:
+                bad = [AXES[i] for i in range(6) if v[i] > thesis[i]]
+                if bad:
+                    worse.append("XTest1_05_Chair, %s, ours %s: worse than the thesis on %s" % (
+                        label, who, ", ".join(bad)))
+    w("")
+    sv = row_for("XTest1_05_Chair", default_config("l515"), "sensors_vs_ground_truth")
+    w("Sensors vs GT on this run (their own error, the floor of every *vs sensors* row): %s" % (
+        " / ".join(f3(x) if i < 3 else f2(x) for i, x in enumerate(sv)) if sv else "—"))
+    w("")
+
+    # ---- tables 5.5 / 5.6
+    for title, table, config, note in (
+            ("table 5.5 (P2L, FR=5, bilateral prefilter)", THESIS_5_5, "t55_p2l_fr5_bil", ""),
+            ("table 5.6 (Cell Search, FR=5, FMThresh=2)", THESIS_5_6, "t56_cs_fr5_bil",
+             " The thesis does not say whether its table 5.6 runs used the bilateral prefilter "
+             "(its figures 5.32 and 5.34 show both); ours use it, the row without is in the "
+             "matrix below (`t56_cs_fr5_nopf`).")):
+        w("## RT1–RT6 (ServoTrack mode 1) beside thesis %s" % title)
+        w("")
+        w("Same configuration on our L515 bags." + note)
+        w("")
+        w("| test | servo input | | errTx | errTy | errTz | errDx | errDy | errDz |")
+        w("|---|---|---|---|---|---|---|---|---|")
+        for s in RT:
+            thesis = table[s]
+            w("| %s | %s | thesis %s|" % (s, SERVO_INPUT[s], axes_cells(thesis)))
+            sens = row_for(s, config, "sensors")
+            gt = row_for(s, config)
+            w("| | | ours vs sensors %s|" % axes_cells(sens))
+            w("| | | ours vs GT %s|" % axes_cells(gt))
+            sv = row_for(s, config, "sensors_vs_ground_truth")
+            w("| | | sensors vs GT %s|" % axes_cells(sv))
+            for who, v in (("vs sensors", sens), ("vs GT", gt)):
+                if v:
+                    bad = [AXES[i] for i in range(6) if v[i] > thesis[i]]
+                    if bad:
+                        worse.append("%s, %s, ours %s: worse than the thesis on %s" % (
+                            s, describe(config), who, ", ".join(bad)))
+        w("")
+
+    # ---- every scenario, best and default
+    for noise, suffix in (("l515", ""), ("d435", "_D435")):
+        w("## Every scenario, %s noise: the defaults and the best configuration" % noise.upper())
+        w("")
+        w("Against ground truth. *Best* = lowest ATE among the configurations that tracked every "
+          "frame.")
+        w("")
+        w("| scenario | configuration | tracked | errTx | errTy | errTz | errDx | errDy | errDz | "
+          "ATE m | drift mm | ms | cpu |")
+        w("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for s in SCENARIOS:
+            name = s + suffix
+            kind = "xtest" if s.startswith("XTest") else "rt" if s in RT else "truck"
+            cands = []
+            for config in configs(kind, noise):
+                r = runs.get((name, config))
+                if r and "ground_truth" in r["scores"]:
+                    cands.append((config, r))
+            dflt = default_config(noise)
+            default = runs.get((name, dflt))
+            full = [(c, r) for c, r in cands if r["tracked"] == r["frames"]]
+            best = min(full, key=lambda x: x[1]["scores"]["ground_truth"]["ate_rmse_m"]) if full else None
+            for label, item in (("default", (dflt, default) if default else None),
+                                ("best", best)):
+                if not item or not item[1]:
+                    w("| %s | %s: not run | | | | | | | | | | | |" % (name, label))
+                    continue
+                config, r = item
+                g = r["scores"].get("ground_truth")
+                w("| %s | %s: %s | %d/%d %s| %s | %s | %s | %s |" % (
+                    name, label, describe(config), r["tracked"], r["frames"],
+                    axes_cells(axes_of(g, True)), f3(g["ate_rmse_m"]) if g else "—",
+                    f1(g["end_drift_mm"]) if g else "—", f1(r["median_ms"]), f1(r["cpu_ms"])))
+            if default and default["tracked"] < default["frames"]:
+                worse.append("%s: the defaults flag %d of %d frames" % (
+                    name, default["frames"] - default["tracked"], default["frames"]))
+            if not full and cands:
+                worse.append("%s: no configuration tracked every frame" % name)
+        w("")
+
+    # ---- TUM
+    w("## TUM RGB-D sequences (real Kinect depth, motion capture)")
+    w("")
+    w("Bags made with `tum_to_bag` (depth_scale 0.0002 m), scored against the sequences' motion "
+      "capture; `config/tum_kinect.yaml` under every configuration.")
+    w("")
+    w("| sequence | configuration | tracked | ATE m | RPE 1 s m | ms | cpu |")
+    w("|---|---|---|---|---|---|---|")
+    for seq in TUM:
+        for config in configs("tum", "kinect"):
+            r = runs.get((seq, config))
+            if not r:
+                continue
+            g = r["scores"].get("ground_truth")
+            w("| %s | %s | %d/%d | %s | %s | %s | %s |" % (
+                seq, describe(config), r["tracked"], r["frames"], f3(g["ate_rmse_m"]) if g else "—",
+                f3(g["rpe_1s_m"]) if g else "—", f1(r["median_ms"]), f1(r["cpu_ms"])))
+    w("")
+    w("### Peers on the same frames (`dt_peers`)")
+    w("")
+    any_peer = False
+    for k, rows in peers.items():
+        if not rows:
+            continue
+        any_peer = True
+        w("%s:" % k)
+        w("")
+        w("| method | frames | ATE m | wall ms | CPU ms |")
+        w("|---|---|---|---|---|")
+        for m, v in rows.items():
+            w("| %s | %d | %.4f | %.1f | %.1f |" % (m, v["frames"], v["ate"], v["med_ms"],
+                                                     v["cpu_ms"]))
+        w("")
+    if not any_peer:
+        w("*Not in this run of the script (`dt_peers` not built, or its runs not finished).*")
+        w("")
+
+    # ---- latency and links
+    w("## Latency scans (thesis 5.4.1) and link timing")
+    w("")
+    w("The sensor stream shifted by -8..+8 of its 33 ms intervals; the shift that minimises the "
+      "error (positive: the sensors lag the camera). The thesis found 4 frames on RT3. Against the "
+      "tracked trajectory (the thesis's method) and against ground truth (what the sensors' lag "
+      "really is in the simulator: USB 2-4 ms, ZigBee 15-25 ms, plus the readings' own filters). "
+      "Default configuration, L515.")
+    w("")
+    w("| scenario | best shift vs tracked (by rotation / position) | vs ground truth |")
+    w("|---|---|---|")
+    for s in SCENARIOS:
+        r = runs.get((s, default_config("l515")))
+        if not r or not r["latency"]:
+            continue
+        lt = r["latency"].get("tracked")
+        lg = r["latency"].get("ground_truth")
+        w("| %s | %s | %s |" % (s, "%+d / %+d" % lt[:2] if lt else "—",
+                                "%+d / %+d" % lg[:2] if lg else "—"))
+    w("")
+    r = runs.get(("RT3", default_config("l515")))
+    if r:
+        try:
+            with open(os.path.join(r["dir"], "link_timing.csv")) as f:
+                rows = list(csv.DictReader(f))
+            w("Link timing of RT3 (latency above each link's fastest frame after the clocks' drift "
+              "is fitted out; the simulator's clocks Time4..Time6 are not recorded):")
+            w("")
+            w("| link | frames | sender period ms | receiver period ms | drift ms/s | latency mean "
+              "ms | p95 ms | jitter ms | gaps |")
+            w("|---|---|---|---|---|---|---|---|---|")
+            for x in rows:
+                w("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+                    x["link"], x["frames"], x["sender_period_ms"], x["receiver_period_ms"],
+                    x["drift_ms_per_s"], x["latency_mean_ms"], x["latency_p95_ms"],
+                    x["jitter_ms"], x["gaps"]))
+            w("")
+        except OSError:
+            pass
+
+    # ---- where we are worse
+    w("## Where we are worse")
+    w("")
+    for s, best in target_rows:
+        if best and (best[1] < 3 or best[2] < 3):
+            worse.append("%s: the 3x target is missed (worst axis %.1fx vs GT, %.1fx vs sensors)"
+                         % (s, best[1], best[2]))
+    if worse:
+        for x in worse:
+            w("- " + x)
+    else:
+        w("- Nowhere in the runs above.")
+    w("")
+
+    # ---- the matrix
+    w("## Every run")
+    w("")
+    w("Against ground truth (angles: thesis Euler, deg; positions mm), then the same maxima "
+      "against the sensors. Folded per bag.")
+    w("")
+    for name, path, scenario, noise, kind in bags:
+        rows = [(c, runs.get((name, c))) for c in configs(kind, noise)]
+        if not any(r for _, r in rows):
+            continue
+        w("<details><summary>%s (%s)</summary>" % (name, noise.upper() if noise != "kinect" else
+                                                   "Kinect, real"))
+        w("")
+        w("| configuration | tracked | errTx | errTy | errTz | errDx | errDy | errDz | ATE m | "
+          "vs sensors: errTx | errTy | errTz | errDx | errDy | errDz | ms | cpu |")
+        w("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for c, r in rows:
+            if not r:
+                w("| %s | not run |%s" % (c, " |" * 16))
+                continue
+            g = r["scores"].get("ground_truth")
+            sn = r["scores"].get("sensors")
+            w("| `%s` | %d/%d %s| %s %s| %s | %s |" % (
+                c, r["tracked"], r["frames"], axes_cells(axes_of(g, True)),
+                f3(g["ate_rmse_m"]) if g else "—", axes_cells(axes_of(sn, True)),
+                f1(r["median_ms"]), f1(r["cpu_ms"])))
+        w("")
+        w("</details>")
+        w("")
+
+    # ---- plots
+    w("## Plots")
+    w("")
+    w("Tracked against both references per axis with the error beneath (the thesis's figure "
+      "layout), and the final map's front and plan views, for the default configuration. Every "
+      "run's own folder (`bags/generated/results/<bag>/<config>/`) has these and the frame time, "
+      "match and latency plots at full size.")
+    w("")
+    for name, path, scenario, noise, kind in bags:
+        dflt = default_config(noise)
+        if not runs.get((name, dflt)):
+            continue
+        pngs = copy_plots(name, dflt, "%s, %s" % (name, describe(dflt)))
+        if pngs:
+            w("- %s: %s" % (name, ", ".join("[%s](results/%s)" % (p[len(name) + 1:-4], p)
+                                            for p in pngs)))
+    w("")
+    os.makedirs(os.path.dirname(PAGE), exist_ok=True)
+    with open(PAGE, "w") as f:
+        f.write("\n".join(L) + "\n")
+    log("wrote %s (%d of %d runs)" % (PAGE, done, len(runs)))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--page-only", action="store_true")
+    ap.add_argument("--no-peers", action="store_true")
+    ap.add_argument("--scenarios", nargs="*", default=SCENARIOS)
+    ap.add_argument("--frames", type=int, default=0)
+    ap.add_argument("--no-tum", action="store_true")
+    args = ap.parse_args()
+    for tool in (EVALUATE_BAG, TUM_TO_BAG, MAKE_SCENARIO_BAG):
+        if not os.path.exists(tool):
+            raise SystemExit("make_results: %s not built (./catkin_ws_setup.sh)" % tool)
+    unknown = [s for s in args.scenarios if s not in SCENARIOS]
+    if unknown:
+        raise SystemExit("make_results: unknown scenarios %s (%s)" % (unknown, " ".join(SCENARIOS)))
+    bags = bags_wanted(args.scenarios, not args.no_tum)
+    if not args.page_only:
+        make_bags(bags, args.jobs)
+        run_all(bags, args.jobs, args.frames)
+        if not args.no_peers:
+            run_peers()
+    write_page(bags, args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
