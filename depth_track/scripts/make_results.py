@@ -14,7 +14,7 @@
    each into bags/generated/results/<bag>/<config>/. A run is done when its report ends with the
    summary line and its run.json names the same command and the same binaries (evaluate_bag and
    the core libraries, by hash): a rebuilt tracker re-runs everything, an interrupted script
-   picks up where it stopped. Runs go niced (10), --jobs at a time.
+   picks up where it stopped. Runs go niced (--nice, 10 unless given), --jobs at a time.
 3. Peers (when dt_peers is built): dt_peers on TUM fr3/teddy, fr1/xyz and the rendered rt3, logs in
    bags/generated/results/peers/.
 4. The page: docs/results.md beside the thesis's published tables, plots in docs/results/.
@@ -111,8 +111,11 @@ def log(msg):
     print("make_results: " + msg, flush=True)
 
 
+NICE = [10]  # --nice
+
+
 def niced(cmd):
-    return ["nice", "-n", "10"] + cmd
+    return ["nice", "-n", str(NICE[0])] + cmd
 
 
 def make_bags(bags, jobs):
@@ -129,6 +132,7 @@ def make_bags(bags, jobs):
                        check=True, env=env)
         for s in l515:
             os.replace(os.path.join(part, s + ".bag"), os.path.join(GENERATED, s + ".bag"))
+    d435 = []
     for name, path, scenario, noise, kind in bags:
         if os.path.exists(path) or noise == "l515":
             continue
@@ -143,22 +147,30 @@ def make_bags(bags, jobs):
                                   TUM[scenario]]), check=True)
             os.replace(path + ".part.bag", path)
             continue
-        # D435: the scenario as it is, with the stereo camera's noise model.
-        with open(os.path.join(ROOT, "config", "scenarios", scenario + ".yaml")) as f:
-            text = f.read()
-        if not re.search(r"^noise:\s*\S+", text, re.M):
-            raise SystemExit("make_results: %s.yaml has no noise: line to override" % scenario)
-        text = re.sub(r"^noise:\s*\S+", "noise: d435", text, count=1, flags=re.M)
-        text = re.sub(r"^name:\s*(\S+)", r"name: \1_D435", text, count=1, flags=re.M)
-        yaml_path = os.path.join(GENERATED, "d435", "scenarios", scenario + "_D435.yaml")
-        with open(yaml_path, "w") as f:
-            f.write("# %s.yaml with the D435 noise model (make_results.py)\n" % scenario + text)
-        tmp = os.path.join(GENERATED, "d435", "part")
-        os.makedirs(tmp, exist_ok=True)
-        log("make_scenario_bag %s (D435 noise)" % scenario)
-        subprocess.run(niced([MAKE_SCENARIO_BAG, "--scenario", yaml_path, "--out-dir", tmp,
-                              "--compression", "lz4", "--threads", "1"]), check=True)
-        os.replace(os.path.join(tmp, scenario + "_D435.bag"), path)
+        d435.append((scenario, path))
+    with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+        for fut in [pool.submit(make_d435_bag, s, p) for s, p in d435]:
+            fut.result()
+
+
+def make_d435_bag(scenario, path):
+    """The scenario as it is, with the stereo camera's noise model."""
+    with open(os.path.join(ROOT, "config", "scenarios", scenario + ".yaml")) as f:
+        text = f.read()
+    if not re.search(r"^noise:\s*\S+", text, re.M):
+        raise SystemExit("make_results: %s.yaml has no noise: line to override" % scenario)
+    text = re.sub(r"^noise:\s*\S+", "noise: d435", text, count=1, flags=re.M)
+    text = re.sub(r"^name:\s*(\S+)", r"name: \1_D435", text, count=1, flags=re.M)
+    yaml_path = os.path.join(GENERATED, "d435", "scenarios", scenario + "_D435.yaml")
+    with open(yaml_path, "w") as f:
+        f.write("# %s.yaml with the D435 noise model (make_results.py)\n" % scenario + text)
+    tmp = os.path.join(GENERATED, "d435", "part")
+    os.makedirs(tmp, exist_ok=True)
+    log("make_scenario_bag %s (D435 noise)" % scenario)
+    subprocess.run(niced([MAKE_SCENARIO_BAG, "--scenario", yaml_path, "--out-dir", tmp,
+                          "--compression", "lz4", "--threads", "1"]), check=True,
+                   stdout=subprocess.DEVNULL)
+    os.replace(os.path.join(tmp, scenario + "_D435.bag"), path)
 
 
 # ---- configurations --------------------------------------------------------------------------------
@@ -191,6 +203,8 @@ def configs(kind, noise):
                 if ref == "fixed":
                     args += ["--icp-frames", str(1 if method == "p2p" else fixed)]
                 c["%s_%s_%s" % (key, ref, pf)] = args
+    if noise == "kinect":  # the one configuration the project stands by, without the preset
+        c["p2l_adaptive_nopreset"] = ["--method", "p2l"] + NONE
     lc_pf = SEPARABLE if noise == "d435" else NONE
     for method, key in METHODS[1:]:
         c["%s_adaptive_lc" % key] = base + ["--method", method, "--loop-closure", "on"] + lc_pf
@@ -220,7 +234,8 @@ def describe(config):
     method, ref, extra = config.split("_")
     words = {"p2p": "P2P", "p2l": "P2L", "cs": "Cell Search"}[method]
     words += ", " + ("adaptive reference" if ref == "adaptive" else "fixed reference")
-    words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure"}[extra]
+    words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure",
+              "nopreset": ", tracker defaults (no Kinect preset)"}[extra]
     return words
 
 
@@ -231,9 +246,10 @@ _hash_cache = {}
 def binaries_hash():
     if "h" not in _hash_cache:
         h = hashlib.sha1()
-        for p in [EVALUATE_BAG] + sorted(
-                os.path.join(DEVEL, "lib", f) for f in os.listdir(os.path.join(DEVEL, "lib"))
-                if f.startswith("libdepth_track_") and f.endswith(".so")):
+        # evaluate_bag and the libraries it runs (not the graph's nodelets: a rebuilt graph does
+        # not change an offline run).
+        for p in [EVALUATE_BAG] + [os.path.join(DEVEL, "lib", "libdepth_track_%s.so" % l)
+                                   for l in ("core", "map", "ros")]:
             with open(p, "rb") as f:
                 h.update(f.read())
         _hash_cache["h"] = h.hexdigest()
@@ -285,16 +301,31 @@ def evaluate(job):
     return name, config, line
 
 
-def run_all(bags, jobs, frames):
+def config_set(config, noise):
+    """Which of the --only sets a configuration belongs to."""
+    if config == default_config(noise) or config == "p2l_adaptive_nopreset":
+        return "default"
+    return "thesis" if config.startswith("t5") else "matrix"
+
+
+def run_all(bags, jobs, frames, only, plot_bags):
     order = []
     for name, path, scenario, noise, kind in bags:
         if not os.path.exists(path):
             continue
         for config, args in configs(kind, noise).items():
             # The defaults and the thesis's configurations first: the page is useful early.
-            default = config == default_config(noise)
-            rank = 0 if default else 1 if config.startswith("t5") else 2
-            order.append((rank, (name, path, config, args, frames, default)))
+            which = config_set(config, noise)
+            if which not in only:
+                continue
+            # Every bag's defaults first, then the thesis's configurations (RT and XTest1 on the
+            # L515 bags, the thesis's camera, before D435), then the rest: the page is useful early.
+            rank = {"default": 0, "thesis": 1, "matrix": 3}[which]
+            if which == "thesis":
+                rank += noise == "d435"
+            # Plots need the map (front and plan views), which doubles a run's cost.
+            plots = which == "default" and (plot_bags is None or name in plot_bags)
+            order.append((rank, (name, path, config, args, frames, plots)))
     order.sort(key=lambda x: x[0])
     log("%d runs (%d jobs at a time)" % (len(order), jobs))
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
@@ -423,7 +454,8 @@ def git(*args):
 
 def copy_plots(name, config, label):
     run_dir = os.path.join(RESULTS, name, config)
-    if not os.path.exists(os.path.join(run_dir, "frames.csv")):
+    # Only runs that made their plots (--plots): the others have no map to draw.
+    if not os.path.exists(os.path.join(run_dir, "tracking.png")):
         return []
     os.makedirs(PAGE_PLOTS, exist_ok=True)
     prefix = "%s_" % name
@@ -480,6 +512,38 @@ def write_page(bags, args):
     w("- **D435 bags** were made from the scenario files with `noise: d435` (the scenario's own "
       "noise field), same seed, same motion.")
     w("")
+    w("## What was run")
+    w("")
+    w("The runs take hours of CPU on the shared 2-core machine, so not every row of the matrix "
+      "below was run for this page: a row without figures says *not run*. Finished, per set of "
+      "configurations (`--only`; runs niced, one thread each):")
+    w("")
+    w("| set | what | bags | finished |")
+    w("|---|---|---|---|")
+    sets = {"default": ("the camera's defaults (L515: tracker defaults; D435: config/d435.yaml; "
+                        "TUM: config/tum_kinect.yaml)", set(), [0, 0]),
+            "thesis": ("the thesis's configurations of tables 5.3 (XTest1) and 5.5 / 5.6 (RT1-RT6)",
+                       set(), [0, 0]),
+            "matrix": ("the rest of the method x reference x prefilter x loop-closure matrix",
+                       set(), [0, 0])}
+    for name, path, scenario, noise, kind in bags:
+        for config in configs(kind, noise):
+            which = sets[config_set(config, noise)]
+            which[2][1] += 1
+            if runs.get((name, config)):
+                which[2][0] += 1
+                which[1].add(name)
+    for key, (what, names, (n_done, n_all)) in sets.items():
+        w("| %s | %s | %s | %d of %d |" % (key, what, ", ".join(sorted(names)) or "none",
+                                           n_done, n_all))
+    w("")
+    stamps = [os.path.getmtime(os.path.join(v["dir"], "report.txt")) for v in runs.values() if v]
+    if stamps:
+        w("Runs finished between %s and %s UTC. The bags were generated before, by "
+          "`bags/generate_bags.sh` (L515) and this script (D435, TUM); the bags are not in git." % (
+              datetime.datetime.utcfromtimestamp(min(stamps)).strftime("%Y-%m-%d %H:%M"),
+              datetime.datetime.utcfromtimestamp(max(stamps)).strftime("%H:%M")))
+        w("")
 
     def row_for(name, config, role="ground_truth", euler=True):
         r = runs.get((name, config))
@@ -647,7 +711,9 @@ def write_page(bags, args):
     w("## TUM RGB-D sequences (real Kinect depth, motion capture)")
     w("")
     w("Bags made with `tum_to_bag` (depth_scale 0.0002 m), scored against the sequences' motion "
-      "capture; `config/tum_kinect.yaml` under every configuration.")
+      "capture; `config/tum_kinect.yaml` under every configuration but the one marked *tracker "
+      "defaults*. That preset was tuned on teddy (issue 12), so its teddy row is no result by "
+      "the project's own rule; the defaults' row is.")
     w("")
     w("| sequence | configuration | tracked | ATE m | RPE 1 s m | ms | cpu |")
     w("|---|---|---|---|---|---|---|")
@@ -795,7 +861,21 @@ def main():
     ap.add_argument("--scenarios", nargs="*", default=SCENARIOS)
     ap.add_argument("--frames", type=int, default=0)
     ap.add_argument("--no-tum", action="store_true")
+    ap.add_argument("--plots", default="all",
+                    help="bags whose default run makes plots and a map (comma separated; "
+                    "default all)")
+    ap.add_argument("--nice", type=int, default=10, help="niceness of every run (default 10)")
+    ap.add_argument("--bags-only", action="store_true", help="make the bags, run nothing")
+    ap.add_argument("--no-new-bags", action="store_true",
+                    help="run on the bags there are, make none (another run may be making them)")
+    ap.add_argument("--only", default="default,thesis,matrix",
+                    help="sets of configurations to run (comma separated): default (the "
+                    "camera's defaults), thesis (tables 5.3/5.5/5.6), matrix (the rest)")
     args = ap.parse_args()
+    args.only = set(x for x in args.only.split(",") if x)
+    NICE[0] = args.nice
+    if not args.only <= {"default", "thesis", "matrix"}:
+        raise SystemExit("make_results: --only takes default, thesis, matrix")
     for tool in (EVALUATE_BAG, TUM_TO_BAG, MAKE_SCENARIO_BAG):
         if not os.path.exists(tool):
             raise SystemExit("make_results: %s not built (./catkin_ws_setup.sh)" % tool)
@@ -804,8 +884,12 @@ def main():
         raise SystemExit("make_results: unknown scenarios %s (%s)" % (unknown, " ".join(SCENARIOS)))
     bags = bags_wanted(args.scenarios, not args.no_tum)
     if not args.page_only:
-        make_bags(bags, args.jobs)
-        run_all(bags, args.jobs, args.frames)
+        if not args.no_new_bags:
+            make_bags(bags, args.jobs)
+        if args.bags_only:
+            return 0
+        run_all(bags, args.jobs, args.frames, args.only,
+                None if args.plots == "all" else set(args.plots.split(",")))
         if not args.no_peers:
             run_peers()
     write_page(bags, args)
