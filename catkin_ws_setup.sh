@@ -36,6 +36,7 @@ PACKAGES=(
   librosconsole-dev libnodeletlib-dev libnodelet-dev pluginlib-dev libtf2-dev libtf2-ros-dev
   libtf2-eigen-dev libtf2-geometry-msgs-dev libsensor-msgs-dev libstd-msgs-dev libstd-srvs-dev
   libgeometry-msgs-dev libnav-msgs-dev libvisualization-msgs-dev libimage-transport-dev
+  image-transport-tools
   libpcl-conversions-dev libpcl-ros-dev librosbag-dev librostest-dev python3-rostest
   python3-rosbag python3-roslaunch python3-rosunit rosbash rviz
   # Python side of the graph's messages, so rostopic / rosmsg / rosservice can decode them
