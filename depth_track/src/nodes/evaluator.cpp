@@ -1,24 +1,30 @@
 // evaluator: scores the tracking graph while a bag replays (launch/replay.launch eval:=true).
-// Subscribes the graph's per-frame `status` (camera pose in odom) and the bag's ground truth
-// (~reference_topic, geometry_msgs/PoseStamped of the camera's optical frame), takes map -> odom
-// from tf, associates by stamp (20 ms), and publishes the running errors (`evaluator/errors`,
-// rig_msgs/TrackingErrors) and the ground truth anchored at the first tracked pose beside the
-// tracked path (`evaluator/gt_path`, `evaluator/path`, map frame). When the input stops
-// (~end_timeout of wall time after the last frame) it saves the trajectory and the map through
-// the graph's services, prints the core's evaluation (the same code as the offline tools) and a
-// summary line, and exits. Parameters: see config/tracking.yaml's comment on the evaluator.
+// Subscribes the graph's per-frame `status` (camera pose in odom), the bag's ground truth
+// (~reference_topic, geometry_msgs/PoseStamped of the camera's optical frame) and the rig's own
+// sensors (~track_state_topic + ~carriage_topic, or ~truck_topic), takes map -> odom from tf,
+// associates by stamp (20 ms), and publishes the running errors against ground truth
+// (`evaluator/errors`, rig_msgs/TrackingErrors) and the ground truth anchored at the first
+// tracked pose beside the tracked path (`evaluator/gt_path`, `evaluator/path`, map frame). When
+// the input stops (~end_timeout of wall time after the last frame) it saves the trajectory and
+// the map through the graph's services, prints the core's evaluateRun table (formatRunEvaluation:
+// the same function and so the same table as evaluate_bag on the same bag; ~table_path writes it
+// to a file too) and a summary line, and exits. Parameters: see docs/graph.md.
 #include <geometry_msgs/PoseStamped.h>
 #include <nav_msgs/Path.h>
+#include <rig_msgs/CarriageSensors.h>
 #include <rig_msgs/ReductionStats.h>
 #include <rig_msgs/SaveFile.h>
+#include <rig_msgs/TrackState.h>
 #include <rig_msgs/TrackingErrors.h>
 #include <rig_msgs/TrackingStatus.h>
+#include <rig_msgs/TruckRc.h>
 #include <ros/ros.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
 
 #include <algorithm>
 #include <cstdio>
+#include <fstream>
 #include <map>
 #include <mutex>
 
@@ -46,12 +52,24 @@ class Evaluator {
     pnh_.param<std::string>("trajectory_path", trajectory_path_, "");
     pnh_.param<std::string>("map_path", map_path_, "");
     pnh_.param("exit_at_end", exit_at_end_, true);
+    pnh_.param<std::string>("table_path", table_path_, "");
+    pnh_.param("latency_scan", latency_scan_, 8);  // evaluate_bag's --latency-scan default
+    pnh_.param<std::string>("base_frame", base_frame_, "base_link");
+    pnh_.param<std::string>("optical_frame", optical_frame_, "camera_depth_optical_frame");
+    std::string track_topic, car_topic, truck_topic;
+    pnh_.param<std::string>("track_state_topic", track_topic, "/track_state");
+    pnh_.param<std::string>("carriage_topic", car_topic, "/carriage_sensors");
+    pnh_.param<std::string>("truck_topic", truck_topic, "/truck_rc");
+    if (latency_scan_ < 0) throw std::invalid_argument("~latency_scan must be >= 0");
     errors_pub_ = nh_.advertise<rig_msgs::TrackingErrors>("evaluator/errors", 10);
     gt_path_pub_ = nh_.advertise<nav_msgs::Path>("evaluator/gt_path", 1, true);
     path_pub_ = nh_.advertise<nav_msgs::Path>("evaluator/path", 1, true);
     status_sub_ = nh_.subscribe("status", 200, &Evaluator::onStatus, this);
     stats_sub_ = nh_.subscribe("cells/stats", 200, &Evaluator::onStats, this);
     ref_sub_ = nh_.subscribe(reference_topic_, 200, &Evaluator::onReference, this);
+    track_sub_ = nh_.subscribe(track_topic, 500, &Evaluator::onTrack, this);
+    car_sub_ = nh_.subscribe(car_topic, 500, &Evaluator::onCarriage, this);
+    truck_sub_ = nh_.subscribe(truck_topic, 500, &Evaluator::onTruck, this);
     timer_ = nh_.createWallTimer(ros::WallDuration(0.5), &Evaluator::onTimer, this);
     ROS_INFO("evaluator: %s against %s; final table %.0f s after the last frame",
              status_sub_.getTopic().c_str(), ref_sub_.getTopic().c_str(), end_timeout_s_);
@@ -66,6 +84,25 @@ class Evaluator {
       ROS_ERROR_THROTTLE(1.0, "evaluator: reference pose at %.3f ignored: %s",
                          m->header.stamp.toSec(), e.what());
     }
+  }
+  // The sensors keyed by stamp: evaluate_bag reads them in stamp order, a subscriber gets them
+  // in arrival order; the first of equal stamps is kept, as evaluate_bag keeps it.
+  static double stampOf(const std_msgs::Header& h) {
+    return (h.stamp.isZero() ? ros::Time::now() : h.stamp).toSec();
+  }
+  void onTrack(const rig_msgs::TrackStateConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    track_.emplace(stampOf(m->header), TrackSensorSample{stampOf(m->header), m->track_pos_m});
+  }
+  void onCarriage(const rig_msgs::CarriageSensorsConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    gimbal_.emplace(stampOf(m->header),
+                    GimbalSensorSample{stampOf(m->header), m->pitch_deg, m->yaw_deg});
+  }
+  void onTruck(const rig_msgs::TruckRcConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    truck_.emplace(stampOf(m->header),
+                   TruckRcSample{stampOf(m->header), m->speed_mps, m->steering});
   }
   void onStats(const rig_msgs::ReductionStatsConstPtr& s) {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -187,26 +224,39 @@ class Evaluator {
     }
     std::printf("\n==== evaluator: %zu frames against %s ====\n", est_.size(),
                 ref_sub_.getTopic().c_str());
-    std::string ate_part = " ate_rmse_m=nan";
+    RunReferences refs;
+    refs.ground_truth = gt;
+    refs.ground_truth_name = ref_sub_.getTopic();
+    for (const auto& [t, x] : track_) refs.sensors.track.push_back(x);
+    for (const auto& [t, x] : gimbal_) refs.sensors.gimbal.push_back(x);
+    for (const auto& [t, x] : truck_) refs.sensors.truck.push_back(x);
+    if (refs.sensors.hasServoTruck()) {
+      // evaluate_bag takes the mount from /tf_static; without one the camera looks ahead.
+      refs.geometry.truck.T_B_C.linear() = rotationBodyFromOptical();
+      try {
+        refs.geometry.truck.T_B_C = conv::fromTransformMsg(
+            tf_buffer_.lookupTransform(base_frame_, optical_frame_, ros::Time(0)).transform);
+      } catch (const std::exception& e) {
+        ROS_WARN("evaluator: no %s -> %s (%s): the truck reference assumes the camera at %s",
+                 base_frame_.c_str(), optical_frame_.c_str(), e.what(), base_frame_.c_str());
+      }
+    }
+    RunEvaluationOptions options;
+    options.latency_scan = latency_scan_;
+    std::string table, ate_part;
     try {
-      const TrajectoryEvaluation ev = evaluateTrajectory(Trajectory(est_.begin(), est_.end()), gt);
-      std::printf("%s\n", formatEvaluation(ev).c_str());
-      const auto& th = ev.thesis;
-      std::printf("max |error| per axis (thesis table style, relative to the first pose):\n");
-      std::printf("  rotation about camera x / y / z: %.3f / %.3f / %.3f deg\n", th.max_err_deg.x(),
-                  th.max_err_deg.y(), th.max_err_deg.z());
-      std::printf("  position x / y / z:              %.2f / %.2f / %.2f mm\n", th.max_err_mm.x(),
-                  th.max_err_mm.y(), th.max_err_mm.z());
-      std::printf("  end drift %.2f mm, RPE over 1 s %.4f m / %.3f deg\n", th.end_drift_mm,
-                  ev.rpe_1s.rms_m, ev.rpe_1s.rms_deg);
-      char buf[256];
-      std::snprintf(buf, sizeof(buf),
-                    " ate_rmse_m=%.4f max_err_deg=%.3f,%.3f,%.3f max_err_mm=%.2f,%.2f,%.2f",
-                    ev.standard.ate_rmse_m, th.max_err_deg.x(), th.max_err_deg.y(),
-                    th.max_err_deg.z(), th.max_err_mm.x(), th.max_err_mm.y(), th.max_err_mm.z());
-      ate_part = buf;
+      const RunEvaluation run = evaluateRun(Trajectory(est_.begin(), est_.end()), refs, options);
+      table = formatRunEvaluation(run);
+      ate_part = " " + formatSummaryFields(run);
     } catch (const std::exception& e) {
-      std::printf("no evaluation against %s: %s\n", ref_sub_.getTopic().c_str(), e.what());
+      table = std::string("no evaluation: ") + e.what();
+      ate_part = " ate_rmse_m=nan max_err_deg=nan,nan,nan max_err_mm=nan,nan,nan";
+    }
+    std::printf("%s\n", table.c_str());
+    if (!table_path_.empty()) {
+      std::ofstream f(table_path_);
+      f << table << "\n" << ate_part.substr(1) << "\n";
+      if (!f) ROS_ERROR("evaluator: cannot write ~table_path %s", table_path_.c_str());
     }
     std::printf(
         "summary: frames=%zu tracked=%d dropped=%zu rejected=%d%s ms_per_frame=%.2f "
@@ -219,7 +269,12 @@ class Evaluator {
   ros::NodeHandle nh_, pnh_;
   tf2_ros::Buffer tf_buffer_;
   tf2_ros::TransformListener tf_listener_;
-  std::string reference_topic_, map_frame_, odom_frame_, trajectory_path_, map_path_;
+  std::string reference_topic_, map_frame_, odom_frame_, trajectory_path_, map_path_, table_path_;
+  std::string base_frame_, optical_frame_;
+  int latency_scan_ = 8;
+  std::map<double, TrackSensorSample> track_;
+  std::map<double, GimbalSensorSample> gimbal_;
+  std::map<double, TruckRcSample> truck_;
   double end_timeout_s_ = 3.0;
   bool exit_at_end_ = true, done_ = false;
   std::mutex mutex_;
@@ -232,7 +287,7 @@ class Evaluator {
   ros::WallTime last_input_;
   nav_msgs::Path path_, gt_path_;
   ros::Publisher errors_pub_, gt_path_pub_, path_pub_;
-  ros::Subscriber status_sub_, stats_sub_, ref_sub_;
+  ros::Subscriber status_sub_, stats_sub_, ref_sub_, track_sub_, car_sub_, truck_sub_;
   ros::WallTimer timer_;
 };
 

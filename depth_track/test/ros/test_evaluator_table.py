@@ -1,0 +1,87 @@
+#!/usr/bin/env python3
+"""The in-graph evaluator's final table equals evaluate_bag's on the same bag (issue 11).
+
+A short rendered RT2 run (ServoTrack with a yaw sine: ground truth and the rig's sensors both
+recorded) is replayed through launch/replay.launch eval:=true on the rostest's master; the
+evaluator writes the table it prints to ~table_path. evaluate_bag then scores the same bag
+offline. Both build the table with the core's evaluateRun / formatRunEvaluation, but from
+different inputs: the graph's poses arrive as status messages and tf, the references as
+subscribed topics; evaluate_bag reads everything from the bag and runs the Tracker itself. So
+the table being equal line for line says the graph tracked the same poses and the evaluator saw
+the same references, at the printed precision (0.001 deg, 0.01 mm).
+"""
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import rospkg
+import rostest
+from catkin.find_in_workspaces import find_in_workspaces
+
+FRAMES = 60
+
+
+def tool(project, name):
+    found = find_in_workspaces(["libexec"], project=project, path=name, first_match_only=True)
+    if not found:
+        raise RuntimeError("%s/%s is not built" % (project, name))
+    return found[0]
+
+
+class EvaluatorTable(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.dir = tempfile.mkdtemp(prefix="dt_evaluator_table_")
+        # realpath first: the workspace's src/depth_track is a symlink to the checkout's folder.
+        root = os.path.dirname(os.path.realpath(rospkg.RosPack().get_path("depth_track")))
+        cls.bag = os.path.join(cls.dir, "RT2.bag")
+        subprocess.run([tool("rig_drivers", "make_scenario_bag"), "--scenario",
+                        os.path.join(root, "config", "scenarios", "RT2.yaml"), "--out-dir",
+                        cls.dir, "--max-frames", str(FRAMES), "--compression", "none"],
+                       check=True, stdout=subprocess.DEVNULL)
+        cls.table_path = os.path.join(cls.dir, "evaluator_table.txt")
+        # Half rate: every frame reaches the graph in order even on a loaded machine.
+        launch = subprocess.run(
+            ["roslaunch", os.path.join(root, "launch", "replay.launch"), "bag:=" + cls.bag,
+             "rate:=0.5", "trajectory_path:=" + os.path.join(cls.dir, "graph_trajectory.txt"),
+             "map_path:=" + os.path.join(cls.dir, "graph_map.bt"),
+             "table_path:=" + cls.table_path],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
+        cls.launch_log = launch.stdout
+        out = os.path.join(cls.dir, "offline")
+        cls.offline = subprocess.run(
+            [tool("depth_track", "evaluate_bag"), cls.bag, "--out-dir", out, "--quiet"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
+        with open(os.path.join(out, "report.txt")) as f:
+            cls.report = f.read()
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.dir, ignore_errors=True)
+
+    def test_table_equals_evaluate_bag(self):
+        self.assertTrue(os.path.exists(self.table_path),
+                        "the evaluator wrote no table; roslaunch said:\n" + self.launch_log[-3000:])
+        with open(self.table_path) as f:
+            lines = f.read().rstrip("\n").split("\n")
+        table, fields = "\n".join(lines[:-1]), lines[-1]
+        self.assertEqual(self.offline.returncode, 0, self.offline.stdout[-2000:])
+        # Both references scored, so the comparison covers the sensor kinematics too.
+        self.assertIn("/rig_sim/camera_pose", table)
+        self.assertIn("track_state + carriage_sensors", table)
+        self.assertIn(table, self.report,
+                      "evaluator's table:\n%s\n\nevaluate_bag's report:\n%s" % (table, self.report))
+        final = self.report.rstrip("\n").split("\n")[-1]
+        self.assertIn(" " + fields + " ", final)
+        self.assertTrue(final.startswith("frames=%d tracked=%d " % (FRAMES, FRAMES)), final)
+        # Not a table of nothing: the tracked run is within millimetres of the truth.
+        ate = float(re.search(r"ate_rmse_m=(\S+)", fields).group(1))
+        self.assertLess(ate, 0.005)
+
+
+if __name__ == "__main__":
+    rostest.rosrun("depth_track", "evaluator_table", EvaluatorTable, sys.argv)
