@@ -2,18 +2,24 @@
 // rendered XTest1_05_Chair run with L515 noise at its ground-truth poses, 5 mm voxels, default
 // 4x3x4 m region. Frames cycle through the run, so the map is warm (as in a long run). Reports
 // the median ms per frame, the OctoMap flush cost amortised per frame, memory per occupied voxel,
-// and, for scale and only with DT_BENCH_OCTOMAP=1, OctoMap's own insertPointCloud on the same
-// frame.
+// the fusion cost while another thread ray-casts the same map (the loop-closure stage sharing
+// it), and, for scale and only with DT_BENCH_OCTOMAP=1, OctoMap's own insertPointCloud on the
+// same frame.
 #include <benchmark/benchmark.h>
 #include <octomap/OcTree.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <ctime>
 #include <string>
+#include <thread>
 #include <vector>
 
+#include "depth_track/core/map/loop_closure.hpp"
+#include "depth_track/core/map/map_fuser.hpp"
+#include "depth_track/core/map/map_raycaster.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
@@ -65,15 +71,15 @@ void BM_Fuse(benchmark::State& state) {
   cfg.carve_stride_px = static_cast<int>(state.range(1));
   VoxelMap map(cfg);
   map.placeRegion(f.T_W_C.front());
-  for (std::size_t i = 0; i < f.depth.size(); ++i)
-    map.fuse(f.depth[i], f.run.intrinsics, f.T_W_C[i]);
+  MapFuser fuser(map, f.run.intrinsics);
+  for (std::size_t i = 0; i < f.depth.size(); ++i) fuser.fuse(f.depth[i], f.T_W_C[i]);
   std::vector<double> ms, cpu_ms;
   std::size_t i = 0;
   double hits = 0, misses = 0, rays = 0;
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     const double c0 = threadCpuMs();
-    const FuseStats st = map.fuse(f.depth[i], f.run.intrinsics, f.T_W_C[i]);
+    const FuseStats st = fuser.fuse(f.depth[i], f.T_W_C[i]);
     cpu_ms.push_back(threadCpuMs() - c0);
     ms.push_back(msSince(t0));
     hits += st.hit_updates, misses += st.miss_updates, rays += st.carve_rays;
@@ -102,6 +108,45 @@ BENCHMARK(BM_Fuse)
     ->Args({1, 1})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
+
+// Fusion while a loop-closure thread ray-casts the same map back to back (320x240 virtual views,
+// loop closure's size): what sharing one map between a fusion and a loop-closure stage costs the
+// fuser. The map's lock lets a waiting fuse in before new casts, so a fuse waits at most for the
+// cast in flight. median_ms is the fusion itself, wait_ms the time spent waiting for the lock.
+void BM_FuseWhileCasting(benchmark::State& state) {
+  const Frames& f = frames();
+  VoxelMap map{MapConfig{}};
+  map.placeRegion(f.T_W_C.front());
+  MapFuser fuser(map, f.run.intrinsics);
+  for (std::size_t i = 0; i < f.depth.size(); ++i) fuser.fuse(f.depth[i], f.T_W_C[i]);
+  std::atomic<bool> stop{false};
+  std::atomic<int> casts{0};
+  std::thread reader([&] {
+    MapRayCaster caster(map, downsampledIntrinsics(f.run.intrinsics, 2), f.run.range);
+    for (std::size_t j = 0; !stop.load(); j = (j + 3) % f.T_W_C.size()) {
+      benchmark::DoNotOptimize(caster.cast(f.T_W_C[j]));
+      ++casts;
+    }
+  });
+  std::vector<double> ms, wait_ms;
+  std::size_t i = 0;
+  for (auto _ : state) {
+    const FuseStats st = fuser.fuse(f.depth[i], f.T_W_C[i]);
+    ms.push_back(st.ms);
+    wait_ms.push_back(st.ms_lock_wait);
+    i = (i + 1) % f.depth.size();
+  }
+  stop = true;
+  reader.join();
+  state.counters["median_ms"] = median(ms);
+  state.counters["median_wait_ms"] = median(wait_ms);
+  std::sort(wait_ms.begin(), wait_ms.end());
+  state.counters["p95_wait_ms"] = wait_ms.empty() ? 0.0 : wait_ms[wait_ms.size() * 95 / 100];
+  state.counters["casts_per_fuse"] =
+      static_cast<double>(casts.load()) / std::max<std::size_t>(1, ms.size());
+  state.SetLabel("probabilistic, stride 8, one thread ray-casting meanwhile");
+}
+BENCHMARK(BM_FuseWhileCasting)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // Flush into the OcTree after every k frames; time per frame = (fuse k frames + flush) / k.
 void BM_FuseAndFlush(benchmark::State& state) {

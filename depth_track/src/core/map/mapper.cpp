@@ -7,14 +7,6 @@
 
 namespace depth_track {
 
-namespace {
-double medianOf(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-}  // namespace
-
 std::vector<std::string> MapperConfig::validate(const PinholeIntrinsics& intrinsics) const {
   std::vector<std::string> p = intrinsics.validate();
   for (const auto& s : map.validate()) p.push_back("map: " + s);
@@ -35,13 +27,17 @@ const MapConfig& checked(const PinholeIntrinsics& k, const MapperConfig& c) {
 
 Mapper::Mapper(const PinholeIntrinsics& intrinsics, const MapperConfig& config,
                const Eigen::Isometry3d& T_W_C0)
-    : intrinsics_(intrinsics), config_(config), map_(checked(intrinsics, config)) {
+    : intrinsics_(intrinsics),
+      config_(config),
+      map_(checked(intrinsics, config)),
+      fuser_(map_, intrinsics),
+      raycaster_(map_, intrinsics, config.range) {
   map_.placeRegion(T_W_C0);
 }
 
 FuseStats Mapper::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
-  const FuseStats st = map_.fuse(depth, intrinsics_, T_W_C);
-  fuse_ms_.push_back(st.ms);
+  const FuseStats st = fuser_.fuse(depth, T_W_C);
+  fuse_ms_.add(st.ms);
   if (config_.flush_every > 0 && map_.framesFused() % config_.flush_every == 0) map_.flush();
   return st;
 }
@@ -53,7 +49,7 @@ MapperFrame Mapper::process(const DepthImage& depth, const Eigen::Isometry3d& T_
   if (config_.loop.enabled && frames_ % config_.loop.cl_step == 0 && map_.occupiedCount() > 0) {
     out.loop_attempted = true;
     out.loop = closeLoop(map_, depth, intrinsics_, config_.range, T_W_C, config_.loop);
-    raycast_ms_.push_back(out.loop.ms_raycast);
+    raycast_ms_.add(out.loop.ms_raycast);
     ++loop_attempts_;
     if (out.loop.accepted) {
       ++loop_accepted_;
@@ -65,17 +61,12 @@ MapperFrame Mapper::process(const DepthImage& depth, const Eigen::Isometry3d& T_
 }
 
 DepthImage Mapper::raycast(const Eigen::Isometry3d& T_W_C) {
-  const auto t0 = std::chrono::steady_clock::now();
-  DepthImage d = map_.raycast(intrinsics_, T_W_C, config_.range);
-  raycast_ms_.push_back(
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  DepthImage d = raycaster_.cast(T_W_C);
+  raycast_ms_.add(raycaster_.timing().last());
   return d;
 }
 
 void Mapper::save(const std::string& path) { map_.save(path); }
-
-double Mapper::fuseMedianMs() const { return medianOf(fuse_ms_); }
-double Mapper::raycastMedianMs() const { return medianOf(raycast_ms_); }
 
 std::string Mapper::summary() const {
   char buf[160];

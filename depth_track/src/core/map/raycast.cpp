@@ -1,20 +1,21 @@
 // Depth from the voxel map (thesis §3.14): one ray per pixel; the first run of occupied voxels
 // along it gives the depth.
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 #if (defined(__SSE2__) || defined(_M_X64)) && !defined(DT_RAYCAST_NO_SIMD)
 #define DT_RAYCAST_SSE2 1
 #include <emmintrin.h>
 #endif
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 #include <type_traits>
 
+#include "depth_track/core/map/map_raycaster.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/worker_pool.hpp"
 #include "voxel_map_impl.hpp"
 
 namespace depth_track {
@@ -512,11 +513,12 @@ void castRay(const Map& m, const Ray& r, double t, double t1, double cap, std::u
 
 }  // namespace
 
-DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_C,
-                             const DepthRange& range, int threads, int min_age_frames) const {
-  checkRaycastInput(K, T_W_C, range);
-  if (min_age_frames < 0) throw std::invalid_argument("raycast: min_age_frames must be >= 0");
-  const Impl& m = *impl_;
+namespace {
+
+// The ray cast of VoxelMap::raycast and MapRayCaster::cast; the caller holds the read lock.
+DepthImage castImage(const VoxelMap::Impl& m, const PinholeIntrinsics& K,
+                     const Eigen::Isometry3d& T_W_C, const DepthRange& range,
+                     const WorkerPool& pool, int min_age_frames, PixelBounds& bounds) {
   const int w = K.width, h = K.height;
   DepthImage out(w, h, 0.0f);
   if (m.occupied_count == 0) return out;
@@ -527,11 +529,8 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
   // the occupied voxels in each block octant, and the depth at which each pixel ray enters it. A
   // ray meets no occupied voxel before entering the nearest such box, and none at all if it
   // meets no box. (A far bound from the box exits would stop the few rays that pass boxes
-  // without a hit sooner, but costs more to splat than it saves.) The buffers are per-thread
-  // scratch kept between calls (fresh image-sized buffers cost page faults each call), used
-  // through a reference so that the TBB workers below see this thread's buffers, not their own.
-  thread_local PixelBounds scratch;
-  PixelBounds& bounds = scratch;
+  // without a hit sooner, but costs more to splat than it saves.) The buffers are the caller's
+  // scratch kept between calls (fresh image-sized buffers cost page faults each call).
   const int gw = (w + 3) / 4;
   bounds.gw = gw;
   bounds.g.resize(static_cast<std::size_t>(gw) * h);
@@ -689,16 +688,50 @@ DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d
     }
   };
   const int bands = (h + kTile - 1) / kTile;
-  if (threads > 1) {
-    tbb::task_arena arena(threads);
-    arena.execute([&] {
-      tbb::parallel_for(tbb::blocked_range<int>(0, bands), [&](const tbb::blocked_range<int>& r) {
-        for (int ty = r.begin(); ty < r.end(); ++ty) band(ty);
-      });
-    });
-  } else {
-    for (int ty = 0; ty < bands; ++ty) band(ty);
-  }
+  pool.parallelFor(0, bands, 1, [&](int b, int e) {
+    for (int ty = b; ty < e; ++ty) band(ty);
+  });
+  return out;
+}
+
+}  // namespace
+
+DepthImage VoxelMap::raycast(const PinholeIntrinsics& K, const Eigen::Isometry3d& T_W_C,
+                             const DepthRange& range, int threads, int min_age_frames) const {
+  checkRaycastInput(K, T_W_C, range);
+  if (min_age_frames < 0) throw std::invalid_argument("raycast: min_age_frames must be >= 0");
+  // Per-thread scratch, passed by reference so the pool's workers use this thread's buffers.
+  thread_local PixelBounds scratch;
+  const map_detail::ReadLock lock(impl_->mutex);
+  return castImage(*impl_, K, T_W_C, range, WorkerPool(std::max(1, threads)), min_age_frames,
+                   scratch);
+}
+
+struct MapRayCaster::Scratch {
+  PixelBounds bounds;
+};
+
+MapRayCaster::MapRayCaster(const VoxelMap& map, const PinholeIntrinsics& intrinsics,
+                           const DepthRange& range, std::shared_ptr<const WorkerPool> pool)
+    : map_(&map),
+      intrinsics_(intrinsics),
+      range_(range),
+      pool_(pool ? std::move(pool) : std::make_shared<const WorkerPool>(1)),
+      scratch_(std::make_unique<Scratch>()) {
+  checkRaycastInput(intrinsics, Eigen::Isometry3d::Identity(), range);
+}
+
+MapRayCaster::~MapRayCaster() = default;
+MapRayCaster::MapRayCaster(MapRayCaster&&) noexcept = default;
+
+DepthImage MapRayCaster::cast(const Eigen::Isometry3d& T_W_C, int min_age_frames) {
+  const auto t0 = std::chrono::steady_clock::now();
+  checkRaycastInput(intrinsics_, T_W_C, range_);
+  if (min_age_frames < 0) throw std::invalid_argument("raycast: min_age_frames must be >= 0");
+  const map_detail::ReadLock lock(map_->impl_->mutex);
+  DepthImage out =
+      castImage(*map_->impl_, intrinsics_, T_W_C, range_, *pool_, min_age_frames, scratch_->bounds);
+  timing_.add(msSince(t0));
   return out;
 }
 
@@ -706,6 +739,7 @@ DepthImage VoxelMap::raycastReference(const PinholeIntrinsics& K, const Eigen::I
                                       const DepthRange& range) const {
   checkRaycastInput(K, T_W_C, range);
   const Impl& m = *impl_;
+  const map_detail::ReadLock lock(m.mutex);
   DepthImage out(K.width, K.height, 0.0f);
   const Eigen::Vector3d o = T_W_C.translation();
   const Eigen::Matrix3d R = T_W_C.linear();

@@ -8,10 +8,11 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <stdexcept>
 
-#include "carve_walk.hpp"
+#include "depth_track/core/map/map_fuser.hpp"
 #include "voxel_map_impl.hpp"
 
 namespace depth_track {
@@ -24,20 +25,6 @@ namespace {
 float logit(double p) { return static_cast<float>(std::log(p / (1.0 - p))); }
 
 bool probIn01(double p) { return std::isfinite(p) && p > 0.0 && p < 1.0; }
-
-// Throws std::invalid_argument when T is not a finite rigid transform.
-void checkPose(const Eigen::Isometry3d& T, const char* what) {
-  if (!T.matrix().allFinite())
-    throw std::invalid_argument(std::string(what) + ": pose T_W_C is not finite");
-  const Eigen::Matrix3d R = T.linear();
-  const double orth = (R.transpose() * R - Eigen::Matrix3d::Identity()).norm();
-  if (orth > 1e-3 || R.determinant() < 0.0) {
-    std::ostringstream s;
-    s << what << ": pose T_W_C has no valid rotation (|R^T R - I| = " << orth
-      << ", det = " << R.determinant() << ")";
-    throw std::invalid_argument(s.str());
-  }
-}
 
 }  // namespace
 
@@ -104,8 +91,9 @@ VoxelMap::VoxelMap(VoxelMap&&) noexcept = default;
 VoxelMap& VoxelMap::operator=(VoxelMap&&) noexcept = default;
 
 void VoxelMap::placeRegion(const Eigen::Isometry3d& T_W_C0) {
-  checkPose(T_W_C0, "placeRegion");
+  map_detail::checkPose(T_W_C0, "placeRegion");
   Impl& m = *impl_;
+  const map_detail::WriteLock lock(m.mutex);
   if (!config_.bounded) return;
   const Eigen::Vector3d lo_C = -config_.start_in_region_m;
   const Eigen::Vector3d hi_C = config_.region_size_m - config_.start_in_region_m;
@@ -125,266 +113,19 @@ void VoxelMap::placeRegion(const Eigen::Isometry3d& T_W_C0) {
 
 Eigen::AlignedBox3d VoxelMap::region() const {
   const Impl& m = *impl_;
+  const map_detail::ReadLock lock(m.mutex);
   return Eigen::AlignedBox3d(m.key_lo.cast<double>() * m.s,
                              (m.key_hi.cast<double>() + Eigen::Vector3d::Ones()) * m.s);
 }
 
-namespace {
-
-// Applies a log-odds change to voxel i of block b (in chunk c); keeps the counters consistent.
-inline void applyUpdate(VoxelMap::Impl& m, Chunk& c, int bi, Block& b, int i, float delta) {
-  using namespace map_detail;
-  float l = b.has(&map_detail::Masks::observed, i) ? b.log_odds[i] : 0.0f;
-  b.set(&map_detail::Masks::observed, i);
-  l = std::min(std::max(l + delta, m.l_min), m.l_max);
-  b.log_odds[i] = l;
-  const bool occ = l > m.l_occ;
-  if (occ != b.has(&map_detail::Masks::occupied, i)) {
-    if (occ) {
-      b.set(&map_detail::Masks::occupied, i);
-      c.occ[bi][i >> 6] |= std::uint64_t{1} << (i & 63);
-      ++c.n_occ[bi];
-      if (b.n_occupied++ == 0) ++c.occupied_blocks;
-      ++m.occupied_count;
-    } else {
-      b.clear(&map_detail::Masks::occupied, i);
-      c.occ[bi][i >> 6] &= ~(std::uint64_t{1} << (i & 63));
-      --c.n_occ[bi];
-      if (--b.n_occupied == 0) --c.occupied_blocks;
-      --m.occupied_count;
-    }
-  }
-  b.set(&map_detail::Masks::dirty, i);
-  b.any_dirty = true;
-}
-
-// True when voxel i of b has not yet been updated in the current frame (and marks it).
-inline bool claim(VoxelMap::Impl& m, Block& b, int i) {
-  using namespace map_detail;
-  if (b.touch_frame != m.frame) {
-    for (auto& w : b.mask) w.touched = 0;
-    b.touch_frame = m.frame;
-  }
-  if (b.has(&map_detail::Masks::touched, i)) return false;
-  b.set(&map_detail::Masks::touched, i);
-  return true;
-}
-
-// Chunk at chunk coordinate c, allocated (growing the dense index) when missing; nullptr when
-// the index would exceed its size cap.
-Chunk* chunkAlloc(VoxelMap::Impl& m, const Eigen::Vector3i& c) {
-  if (Chunk* ch = m.chunkAt(c.x(), c.y(), c.z())) return ch;
-  const bool inside = (c.array() >= m.index_lo.array()).all() &&
-                      (c.array() < (m.index_lo + m.index_dims).array()).all();
-  if (!inside) {
-    Eigen::Vector3i lo = c.array() - 2, hi = c.array() + 3;  // slack: grow rarely
-    if (!m.index.empty()) {
-      lo = lo.cwiseMin(m.index_lo);
-      hi = hi.cwiseMax(m.index_lo + m.index_dims);
-    }
-    const Eigen::Vector3i dims = hi - lo;
-    const std::size_t n = static_cast<std::size_t>(dims.x()) * dims.y() * dims.z();
-    if (n > map_detail::kMaxChunkIndex) return nullptr;
-    std::vector<Chunk*> index(n, nullptr);
-    for (const auto& ch : m.chunks) {
-      const Eigen::Vector3i r = ch->coord - lo;
-      index[(static_cast<std::size_t>(r.z()) * dims.y() + r.y()) * dims.x() + r.x()] = ch.get();
-    }
-    m.index.swap(index);
-    m.index_lo = lo;
-    m.index_dims = dims;
-  }
-  auto owned = std::make_unique<Chunk>();
-  owned->coord = c;
-  Chunk* ch = owned.get();
-  m.chunks.push_back(std::move(owned));
-  const Eigen::Vector3i r = c - m.index_lo;
-  m.index[(static_cast<std::size_t>(r.z()) * m.index_dims.y() + r.y()) * m.index_dims.x() + r.x()] =
-      ch;
-  return ch;
-}
-
-// A voxel update resolved ahead of time, so the lines it touches can be fetched first.
-struct Pending {
-  Chunk* chunk;
-  Block* block;
-  int block_index;
-  int voxel;
-};
-
-// Per-frame projection constants: pixel (u, v) with depth z is the voxel-coordinate point
-// Rs (xu[u] z, yv[v] z, z) + ts.
-struct FrameRays {
-  std::vector<float> xu, yv;
-  Eigen::Matrix3f Rs;
-  Eigen::Vector3f ts;
-};
-
-// Pass 1: one hit per voxel holding a return. Consecutive pixels often fall into one voxel; the
-// last key short-cuts them. Kept out of line (as is carve()) so each loop gets the registers.
-__attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& depth,
-                                        const FrameRays& fr, FuseStats& st) {
-  const int w = depth.width, h = depth.height;
-  int last[3] = {std::numeric_limits<int>::min(), 0, 0};
-  Chunk* chunk = nullptr;
-  Eigen::Vector3i chunk_coord(std::numeric_limits<int>::min(), 0, 0);
-  std::vector<Pending> pending(w);  // at most one per pixel of a row
-  std::vector<int> kx(w), ky(w), kz(w);
-  const Eigen::Matrix3f& R = fr.Rs;
-  const Eigen::Vector3f& t = fr.ts;
-  for (int v = 0; v < h; ++v) {
-    int n = 0;
-    const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
-    const float yv = fr.yv[v];
-    if (v + 1 < h)  // the next row streams in while this one is fused
-      for (int u = 0; u < w; u += 16) __builtin_prefetch(row + w + u);
-    // The row's voxel keys first, in a branch-free loop the compiler vectorises (no-return
-    // pixels get the camera's voxel and are skipped below).
-    for (int u = 0; u < w; ++u) {
-      const float z0 = row[u];
-      const float z = z0 > 0.0f && z0 < std::numeric_limits<float>::infinity() ? z0 : 0.0f;
-      const float px = fr.xu[u] * z, py = yv * z;
-      kx[u] = map_detail::fastFloor(R(0, 0) * px + R(0, 1) * py + R(0, 2) * z + t.x());
-      ky[u] = map_detail::fastFloor(R(1, 0) * px + R(1, 1) * py + R(1, 2) * z + t.y());
-      kz[u] = map_detail::fastFloor(R(2, 0) * px + R(2, 1) * py + R(2, 2) * z + t.z());
-    }
-    for (int u = 0; u < w; ++u) {
-      const float z = row[u];
-      // A return is finite and positive; counted here rather than in a separate pass.
-      if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity())) continue;
-      ++st.valid_pixels;
-      const int x = kx[u], y = ky[u], zz = kz[u];
-      if (x == last[0] && y == last[1] && zz == last[2]) {
-        ++st.fused_pixels;
-        continue;
-      }
-      if (!m.inKeyRange(x, y, zz)) {
-        ++st.outside_region;
-        continue;
-      }
-      const Eigen::Vector3i cc(x >> map_detail::kChunkShift, y >> map_detail::kChunkShift,
-                               zz >> map_detail::kChunkShift);
-      if (cc != chunk_coord || !chunk) {
-        chunk = chunkAlloc(m, cc);
-        chunk_coord = cc;
-        if (!chunk) {
-          ++st.outside_region;
-          continue;
-        }
-      }
-      last[0] = x, last[1] = y, last[2] = zz;
-      ++st.fused_pixels;
-      const int bi = map_detail::blockInChunk(x, y, zz);
-      auto& slot = chunk->blocks[bi];
-      if (!slot) {
-        slot = std::make_unique<Block>();
-        chunk->born[bi] = m.frame;
-        ++m.block_count;
-      }
-      const int i = map_detail::voxelInBlock(x, y, zz);
-      // The grid is far larger than the caches: fetch the voxel's lines while the rest of the
-      // row is resolved, and update them afterwards.
-      __builtin_prefetch(slot.get());
-      __builtin_prefetch(&slot->mask[i >> 6]);
-      __builtin_prefetch(&slot->log_odds[i]);
-      pending[n++] = {chunk, slot.get(), bi, i};
-    }
-    for (int k = 0; k < n; ++k) {
-      const Pending& p = pending[k];
-      if (claim(m, *p.block, p.voxel)) {
-        applyUpdate(m, *p.chunk, p.block_index, *p.block, p.voxel, m.l_hit);
-        ++st.hit_updates;
-      }
-    }
-  }
-}
-
-// Pass 2: carving along every stride-th ray in u and v (offset `phase` rotating over frames),
-// through blocks that hold returns: one miss per voxel passed before (return depth - margin),
-// at most one update per voxel per frame, none for voxels hit in this frame (claimed in pass 1).
-// Misses all change a voxel alike, so the order in which rays claim voxels does not matter: a
-// row of rays is walked first (fetching the voxels' lines), then its misses are applied.
-__attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
-                                     const FrameRays& fr, const Eigen::Isometry3d& T_W_C,
-                                     int stride, double margin_m, FuseStats& st) {
-  const int w = depth.width, h = depth.height;
-  const int phase = static_cast<int>(m.frame % static_cast<std::uint32_t>(stride * stride));
-  const int ou = phase % stride, ov = phase / stride;
-  const Eigen::Vector3d o = T_W_C.translation();
-  const Eigen::Matrix3d R = T_W_C.linear();
-  std::vector<Pending> pending(4096);
-  std::size_t n = 0;
-  auto collect = [&](Chunk& c, int bi, Block& b, int i) {
-    __builtin_prefetch(&b);
-    __builtin_prefetch(&b.mask[i >> 6]);
-    __builtin_prefetch(&b.log_odds[i]);
-    if (__builtin_expect(n == pending.size(), 0)) pending.resize(2 * n);
-    pending[n++] = {&c, &b, bi, i};
-  };
-  for (int v = ov; v < h; v += stride) {
-    const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
-    for (int u = ou; u < w; u += stride) {
-      const double z = row[u];
-      // As in the hit pass, only a finite positive depth is a return (a ray to +inf never ends).
-      if (!(z > 0.0) || !(z < std::numeric_limits<double>::infinity())) continue;
-      // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
-      const Eigen::Vector3d d = R * Eigen::Vector3d(fr.xu[u], fr.yv[v], 1.0);
-      const double t_end = z - margin_m / d.norm();  // margin metres along the ray
-      if (t_end <= 0.0) continue;
-      map_detail::walkCarve(m, o, d, t_end, collect);
-      ++st.carve_rays;
-    }
-    for (std::size_t k = 0; k < n; ++k) {
-      const Pending& p = pending[k];
-      if (claim(m, *p.block, p.voxel)) {
-        applyUpdate(m, *p.chunk, p.block_index, *p.block, p.voxel, m.l_miss);
-        ++st.miss_updates;
-      }
-    }
-    n = 0;
-  }
-}
-
-}  // namespace
-
 FuseStats VoxelMap::fuse(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
                          const Eigen::Isometry3d& T_W_C) {
-  const auto t_start = std::chrono::steady_clock::now();
-  // Every check comes before the first write, so a throw leaves the map as it was.
-  const auto kp = intrinsics.validate();
-  if (!kp.empty()) throw std::invalid_argument("fuse: camera intrinsics: " + joinProblems(kp));
-  if (depth.empty()) throw DepthInputError("fuse: depth frame is empty (0x0 pixels)");
-  checkFrameSize(depth, intrinsics);
-  checkPose(T_W_C, "fuse");
-  FuseStats st;
+  return MapFuser(*this, intrinsics).fuse(depth, T_W_C);
+}
 
-  Impl& m = *impl_;
-  const std::uint32_t frame_before = m.frame;
-  ++m.frame;
-  if (m.frame == 0) ++m.frame;  // 0 marks "never touched"
-  FrameRays fr;
-  fr.xu.resize(depth.width);
-  fr.yv.resize(depth.height);
-  for (int u = 0; u < depth.width; ++u)
-    fr.xu[u] = static_cast<float>((u - intrinsics.cx) / intrinsics.fx);
-  for (int v = 0; v < depth.height; ++v)
-    fr.yv[v] = static_cast<float>((v - intrinsics.cy) / intrinsics.fy);
-  // Voxel coordinates directly: q = (R p_C + t) / s.
-  fr.Rs = (T_W_C.linear() * m.inv_s).cast<float>();
-  fr.ts = (T_W_C.translation() * m.inv_s).cast<float>();
-
-  fuseHits(m, depth, fr, st);
-  if (st.valid_pixels == 0) {
-    // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
-    m.frame = frame_before;
-    throw DepthInputError("fuse: depth frame has no valid return");
-  }
-  if (config_.model == UpdateModel::kProbabilistic)
-    carve(m, depth, fr, T_W_C, config_.carve_stride_px, config_.carve_margin_m, st);
-  ++frames_fused_;
-  st.ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_start).count();
-  return st;
+int VoxelMap::framesFused() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return frames_fused_;
 }
 
 VoxelKey VoxelMap::keyOf(const Eigen::Vector3d& p_W) const {
@@ -397,6 +138,7 @@ Eigen::Vector3d VoxelMap::centerOf(const VoxelKey& key) const {
 }
 
 VoxelState VoxelMap::state(const VoxelKey& k) const {
+  const map_detail::ReadLock lock(impl_->mutex);
   const Block* b = impl_->blockAt(k.x(), k.y(), k.z());
   if (!b) return VoxelState::kUnknown;
   const int i = map_detail::voxelInBlock(k.x(), k.y(), k.z());
@@ -405,6 +147,7 @@ VoxelState VoxelMap::state(const VoxelKey& k) const {
 }
 
 float VoxelMap::logOdds(const VoxelKey& k) const {
+  const map_detail::ReadLock lock(impl_->mutex);
   const Block* b = impl_->blockAt(k.x(), k.y(), k.z());
   if (!b) return 0.0f;
   const int i = map_detail::voxelInBlock(k.x(), k.y(), k.z());
@@ -412,6 +155,7 @@ float VoxelMap::logOdds(const VoxelKey& k) const {
 }
 
 void VoxelMap::forEachOccupied(const std::function<void(const VoxelKey&)>& f) const {
+  const map_detail::ReadLock lock(impl_->mutex);
   for (const auto& ch : impl_->chunks) {
     if (ch->occupied_blocks == 0) continue;
     for (int bi = 0; bi < map_detail::kChunkBlocks; ++bi) {
@@ -432,15 +176,23 @@ void VoxelMap::forEachOccupied(const std::function<void(const VoxelKey&)>& f) co
 
 std::vector<VoxelKey> VoxelMap::occupiedKeys() const {
   std::vector<VoxelKey> keys;
-  keys.reserve(impl_->occupied_count);
+  keys.reserve(occupiedCount());
   forEachOccupied([&](const VoxelKey& k) { keys.push_back(k); });
   return keys;
 }
 
-std::size_t VoxelMap::occupiedCount() const { return impl_->occupied_count; }
-std::size_t VoxelMap::blockCount() const { return impl_->block_count; }
+std::size_t VoxelMap::occupiedCount() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return impl_->occupied_count;
+}
+
+std::size_t VoxelMap::blockCount() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return impl_->block_count;
+}
 
 std::size_t VoxelMap::observedCount() const {
+  const map_detail::ReadLock lock(impl_->mutex);
   std::size_t n = 0;
   for (const auto& ch : impl_->chunks)
     for (const auto& b : ch->blocks)
@@ -452,11 +204,15 @@ std::size_t VoxelMap::observedCount() const {
 
 std::size_t VoxelMap::memoryBytes() const {
   const Impl& m = *impl_;
+  const map_detail::ReadLock lock(m.mutex);
   return m.block_count * sizeof(Block) + m.chunks.size() * (sizeof(Chunk) + sizeof(void*)) +
          m.index.capacity() * sizeof(Chunk*) + sizeof(Impl);
 }
 
-std::size_t VoxelMap::octreeMemoryBytes() const { return impl_->tree->memoryUsage(); }
+std::size_t VoxelMap::octreeMemoryBytes() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return impl_->tree->memoryUsage();
+}
 
 namespace {
 
@@ -472,6 +228,11 @@ void pruneSubtree(octomap::OcTree& tree, octomap::OcTreeNode* node) {
 }  // namespace
 
 const octomap::OcTree& VoxelMap::flush() {
+  const map_detail::WriteLock lock(impl_->mutex);
+  return flushLocked();
+}
+
+const octomap::OcTree& VoxelMap::flushLocked() {
   Impl& m = *impl_;
   constexpr int kOffset = 32768;  // OctoMap's tree_max_val at 16 levels
   // A block (8^3 voxels) is one OcTree node 3 levels above the leaves.
@@ -522,7 +283,8 @@ void VoxelMap::save(const std::string& path_bt) {
       throw MapIoError("map save: cannot write '" + path_bt +
                        "' (directory missing or not writable)");
   }
-  flush();
+  const map_detail::WriteLock lock(impl_->mutex);
+  flushLocked();
   impl_->tree->prune();
   if (!impl_->tree->writeBinaryConst(tmp)) {
     std::remove(tmp.c_str());

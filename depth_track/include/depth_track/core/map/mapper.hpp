@@ -1,8 +1,9 @@
 #pragma once
-/// The mapping stage as one object: loop closure every CLStep frames, then fusion of the full
-/// frame at the (corrected) pose; ray casting on request; `.bt` save; per-stage timings. Used the
-/// same way by the offline tool and the nodelet. ROS-free core; not thread-safe (one instance
-/// per camera stream).
+/// The mapping stages composed for one camera stream: the map storage with a fuser and a ray
+/// caster over it; loop closure every CLStep frames, then fusion of the full frame at
+/// the (corrected) pose; ray casting on request; `.bt` save; per-stage timings. Used the same
+/// way by the offline tool and the graph. ROS-free core; not thread-safe (one instance per
+/// camera stream; the graph shares map() between its own fusion and loop-closure stages).
 #include <Eigen/Geometry>
 #include <string>
 #include <vector>
@@ -10,7 +11,10 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/depth_image.hpp"
 #include "depth_track/core/map/loop_closure.hpp"
+#include "depth_track/core/map/map_fuser.hpp"
+#include "depth_track/core/map/map_raycaster.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/running_stats.hpp"
 
 namespace depth_track {
 
@@ -37,6 +41,8 @@ class Mapper {
   /// every problem of the config or intrinsics.
   Mapper(const PinholeIntrinsics& intrinsics, const MapperConfig& config,
          const Eigen::Isometry3d& T_W_C0 = Eigen::Isometry3d::Identity());
+  Mapper(const Mapper&) = delete;  // the stages hold the map by reference
+  Mapper& operator=(const Mapper&) = delete;
 
   /// One tracked frame: on every cl_step-th frame (loop closure enabled, map not empty) corrects
   /// T_W_C against the map, then fuses the frame at the resulting pose. If a correction was
@@ -55,9 +61,13 @@ class Mapper {
   const MapperConfig& config() const { return config_; }
   int loopAttempts() const { return loop_attempts_; }
   int loopAccepted() const { return loop_accepted_; }
-  /// Median wall time of fuse calls / ray casts so far, ms (0 when none).
-  double fuseMedianMs() const;
-  double raycastMedianMs() const;
+  /// Median wall time of the last RunningStats::kDefaultWindow fuse calls / ray casts, ms (0
+  /// when none).
+  double fuseMedianMs() const { return fuse_ms_.median(); }
+  double raycastMedianMs() const { return raycast_ms_.median(); }
+  /// ms per fuse call and per ray cast (loop closure's and raycast()'s).
+  const RunningStats& fuseTiming() const { return fuse_ms_; }
+  const RunningStats& raycastTiming() const { return raycast_ms_; }
   /// "fuse_median_ms=X raycast_median_ms=Y loop_closures=A/B" (accepted/attempted).
   std::string summary() const;
 
@@ -65,9 +75,11 @@ class Mapper {
   PinholeIntrinsics intrinsics_;
   MapperConfig config_;
   VoxelMap map_;
+  MapFuser fuser_;
+  MapRayCaster raycaster_;
   int frames_ = 0;
   int loop_attempts_ = 0, loop_accepted_ = 0;
-  std::vector<double> fuse_ms_, raycast_ms_;
+  RunningStats fuse_ms_, raycast_ms_;
 };
 
 }  // namespace depth_track

@@ -3,6 +3,13 @@
 /// blocked, hashed log-odds grid, flushed into an octomap::OcTree (the map of record, saved as
 /// `.bt`), and ray-cast back into virtual depth images (§3.14). ROS-free core.
 ///
+/// VoxelMap is the storage; fusion (MapFuser, map_fuser.hpp) and ray casting (MapRayCaster,
+/// map_raycaster.hpp) are stages over it, so a fusion thread and a loop-closure thread can share
+/// one map. Thread safety: one writer or many readers at a time, through a shared mutex taken by
+/// every public call (fuse, flush, save and placeRegion write; the rest read), so a reader sees
+/// the map between two whole frames. A call holds the lock for its duration only: a reader that
+/// needs several calls to agree (count, then keys) must not run beside a writer.
+///
 /// Layout: voxels of `voxel_size_m` are grouped in blocks of 8^3 voxels, blocks in chunks of 8^3
 /// blocks (64^3 voxels, 32 cm at 5 mm). Chunks are found through a dense index over the bounding
 /// box of allocated chunks, so no lookup hashes. Every block keeps bit masks of its observed and
@@ -79,13 +86,14 @@ struct MapConfig {
 
 /// What one fusion call did.
 struct FuseStats {
-  int valid_pixels = 0;    ///< pixels with a return
-  int fused_pixels = 0;    ///< returns inside the region that updated (or re-hit) a voxel
-  int outside_region = 0;  ///< returns outside the bounded region (or the key range)
-  int hit_updates = 0;     ///< voxels updated as hit
-  int miss_updates = 0;    ///< voxels updated as miss (carving)
-  int carve_rays = 0;      ///< rays walked for carving
-  double ms = 0.0;         ///< wall time of the call
+  int valid_pixels = 0;       ///< pixels with a return
+  int fused_pixels = 0;       ///< returns inside the region that updated (or re-hit) a voxel
+  int outside_region = 0;     ///< returns outside the bounded region (or the key range)
+  int hit_updates = 0;        ///< voxels updated as hit
+  int miss_updates = 0;       ///< voxels updated as miss (carving)
+  int carve_rays = 0;         ///< rays walked for carving
+  double ms = 0.0;            ///< wall time of the fusion, ms (after the write lock was taken)
+  double ms_lock_wait = 0.0;  ///< time spent waiting for the write lock (readers casting), ms
 };
 
 /// Occupancy state of one voxel.
@@ -114,7 +122,7 @@ class VoxelMap {
   /// Fuses a full-resolution depth frame (metres, 0 = no return) seen from T_W_C. Throws
   /// DepthInputError for a frame whose size does not match the intrinsics or that has no return,
   /// and std::invalid_argument for bad intrinsics or a non-finite / non-rigid pose; on a throw the
-  /// map is unchanged. Not thread-safe (one writer, no concurrent readers).
+  /// map is unchanged. MapFuser(*this, intrinsics).fuse(depth, T_W_C): takes the write lock.
   FuseStats fuse(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
                  const Eigen::Isometry3d& T_W_C);
 
@@ -125,12 +133,13 @@ class VoxelMap {
   /// and each pixel ray is marched from where it enters the nearest of those boxes (not at all
   /// if it meets none), skipping chunks and blocks without an occupied voxel. With
   /// min_age_frames > 0 only blocks first observed at least that many fused frames ago count (the
-  /// consolidated model, for loop closure). Thread-safe against other const calls (keeps ~5 MB of
-  /// scratch per calling thread for a 640x480 image); `threads` > 1 splits rows over TBB workers.
+  /// consolidated model, for loop closure). Takes the read lock; keeps ~5 MB of scratch per
+  /// calling thread for a 640x480 image; `threads` > 1 splits rows over TBB workers. The same
+  /// image as MapRayCaster::cast, which keeps its scratch and worker pool per caster.
   DepthImage raycast(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
                      const DepthRange& range, int threads = 1, int min_age_frames = 0) const;
   /// Reference ray cast: every ray marched from range.min_m voxel by voxel through the same
-  /// occupancy test, without skipping. Slow; kept to check raycast() against. Thread-safe.
+  /// occupancy test, without skipping. Slow; kept to check raycast() against. Takes the read lock.
   DepthImage raycastReference(const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C,
                               const DepthRange& range) const;
 
@@ -138,11 +147,12 @@ class VoxelMap {
   VoxelKey keyOf(const Eigen::Vector3d& p_W) const;
   /// World centre of a voxel, metres. Thread-safe.
   Eigen::Vector3d centerOf(const VoxelKey& key) const;
-  /// State of a voxel. Thread-safe against other const calls.
+  /// State of a voxel. Takes the read lock.
   VoxelState state(const VoxelKey& key) const;
-  /// Log-odds of a voxel (0 when unknown). Thread-safe against other const calls.
+  /// Log-odds of a voxel (0 when unknown). Takes the read lock.
   float logOdds(const VoxelKey& key) const;
-  /// Calls f(key) for every occupied voxel. Thread-safe against other const calls.
+  /// Calls f(key) for every occupied voxel, holding the read lock: f may use keyOf / centerOf
+  /// but must not call the map's other members (a waiting writer would deadlock them).
   void forEachOccupied(const std::function<void(const VoxelKey&)>& f) const;
   /// Occupied voxel keys (unordered).
   std::vector<VoxelKey> occupiedKeys() const;
@@ -156,10 +166,11 @@ class VoxelMap {
   /// Heap bytes of the OcTree after the last flush (OctoMap's own memoryUsage()).
   std::size_t octreeMemoryBytes() const;
   const MapConfig& config() const { return config_; }
-  int framesFused() const { return frames_fused_; }
+  int framesFused() const;
 
   /// Pushes every voxel changed since the last flush into the OcTree (log-odds set key by key,
-  /// inner nodes updated, tree pruned) and returns it. Not thread-safe.
+  /// inner nodes updated, tree pruned) and returns it. Takes the write lock; the tree returned is
+  /// only stable until the next flush() or save().
   const octomap::OcTree& flush();
   /// Flushes and writes the OcTree as an OctoMap binary `.bt` file (occupied/free per leaf, read
   /// by octovis and octomap-tools). Written to a temporary file and renamed, so a failure leaves
@@ -172,6 +183,10 @@ class VoxelMap {
   struct Impl;  ///< defined in src/core/map/voxel_map_impl.hpp
 
  private:
+  friend class MapFuser;
+  friend class MapRayCaster;
+  const octomap::OcTree& flushLocked();
+
   MapConfig config_;
   std::unique_ptr<Impl> impl_;
   int frames_fused_ = 0;
