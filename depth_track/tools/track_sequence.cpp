@@ -192,6 +192,10 @@ int main(int argc, char** argv) {
         } else {
           st = tracker.track(depth, source->stamp(i));
           if (mapper) {
+            // Accepted corrections move the tracker (its world is the map frame), which keeps
+            // this tool's trajectories as they were; the graph keeps the tracker in odom and a
+            // map -> odom correction instead (Mapper::processOdom: the same poses up to rounding,
+            // test_map_stages).
             const MapperFrame mf = mapper->process(depth, st.T_W_C);
             if (mf.loop_attempted && mf.loop.accepted) {
               tracker.correctPose(mf.T_W_C);

@@ -29,9 +29,6 @@ void dropGrazingCells(CellCloud& c, double min_cos) {
   }
   c.cells.swap(kept);
 }
-double msSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 }  // namespace
 
 PinholeIntrinsics downsampledIntrinsics(const PinholeIntrinsics& K, int factor) {
@@ -109,22 +106,56 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   return p;
 }
 
-LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
-                            const PinholeIntrinsics& intrinsics, const DepthRange& range,
-                            const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config) {
+namespace {
+const LoopClosureConfig& checked(const PinholeIntrinsics& intrinsics,
+                                 const LoopClosureConfig& config) {
   const auto problems = config.validate(intrinsics);
   if (!problems.empty())
     throw std::invalid_argument("loop closure config: " + joinProblems(problems));
-  if (!T_W_C_pred.matrix().allFinite())
-    throw std::invalid_argument("loop closure: predicted pose T_W_C is not finite");
-  checkFrameSize(current, intrinsics);
+  return config;
+}
+}  // namespace
+
+LoopCloser::LoopCloser(const VoxelMap& map, const PinholeIntrinsics& intrinsics,
+                       const DepthRange& range, const LoopClosureConfig& config)
+    : intrinsics_(intrinsics),
+      cast_intrinsics_(checked(intrinsics, config).raycast_downsample == 1
+                           ? intrinsics
+                           : downsampledIntrinsics(intrinsics, config.raycast_downsample)),
+      config_(config),
+      caster_(map, cast_intrinsics_, range) {}
+
+LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
+                            const PinholeIntrinsics& intrinsics, const DepthRange& range,
+                            const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config) {
+  return LoopCloser(map, intrinsics, range, config).attempt(current, 0.0, T_W_C_pred);
+}
+
+LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
+                                      const Eigen::Isometry3d& T_O_C,
+                                      const Eigen::Isometry3d& T_M_O) {
+  const auto t_attempt = std::chrono::steady_clock::now();
+  if (!T_O_C.matrix().allFinite())
+    throw std::invalid_argument("loop closure: predicted pose T_O_C is not finite");
+  if (!T_M_O.matrix().allFinite())
+    throw std::invalid_argument("loop closure: map -> odom correction T_M_O is not finite");
+  checkFrameSize(current, intrinsics_);
+  const LoopClosureConfig& config = config_;
+  const PinholeIntrinsics& K = cast_intrinsics_;
+  const int f = config.raycast_downsample;
+  const Eigen::Isometry3d T_W_C_pred = T_M_O * T_O_C;
 
   LoopClosureResult r;
   r.T_W_C = T_W_C_pred;
-  const int f = config.raycast_downsample;
-  const PinholeIntrinsics K = f == 1 ? intrinsics : downsampledIntrinsics(intrinsics, f);
+  r.correction = {stamp_s, T_M_O};
+  // Every exit below is a verdict with a reason; the attempt's time is taken on the way out.
+  struct Timer {
+    RunningStats& stats;
+    std::chrono::steady_clock::time_point t0;
+    ~Timer() { stats.add(msSince(t0)); }
+  } timer{timing_, t_attempt};
   auto t0 = std::chrono::steady_clock::now();
-  const DepthImage virt = map.raycast(K, T_W_C_pred, range, 1, config.min_model_age_frames);
+  const DepthImage virt = caster_.cast(T_W_C_pred, config.min_model_age_frames);
   r.ms_raycast = msSince(t0);
   r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
   std::ostringstream why;
@@ -198,6 +229,7 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   }
   // T_ref_cur maps the current camera into the virtual camera at the prediction.
   r.T_W_C = orthonormalized(T_W_C_pred * res.T_ref_cur);
+  r.correction.T_M_O = orthonormalized(r.T_W_C * T_O_C.inverse());
   r.accepted = true;
   why << "accepted: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg << " deg, "
       << r.matches << " pairs, residual " << 1000.0 * r.error_rms_m << " mm";

@@ -33,6 +33,8 @@ Mapper::Mapper(const PinholeIntrinsics& intrinsics, const MapperConfig& config,
       fuser_(map_, intrinsics),
       raycaster_(map_, intrinsics, config.range) {
   map_.placeRegion(T_W_C0);
+  if (config.loop.enabled)
+    loop_ = std::make_unique<LoopCloser>(map_, intrinsics, config.range, config.loop);
 }
 
 FuseStats Mapper::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
@@ -43,17 +45,32 @@ FuseStats Mapper::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) 
 }
 
 MapperFrame Mapper::process(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
+  // The identity correction: T_M_O T_O_C is T_W_C exactly.
+  return step(depth, 0.0, T_W_C, Eigen::Isometry3d::Identity());
+}
+
+MapperFrame Mapper::processOdom(const DepthImage& depth, double stamp_s,
+                                const Eigen::Isometry3d& T_O_C) {
+  MapperFrame out = step(depth, stamp_s, T_O_C, correction_.T_M_O);
+  correction_ = out.correction;
+  return out;
+}
+
+MapperFrame Mapper::step(const DepthImage& depth, double stamp_s, const Eigen::Isometry3d& T_O_C,
+                         const Eigen::Isometry3d& T_M_O) {
   MapperFrame out;
-  out.T_W_C = T_W_C;
+  out.T_W_C = T_M_O * T_O_C;
+  out.correction = {correction_.stamp_s, T_M_O};
   ++frames_;
-  if (config_.loop.enabled && frames_ % config_.loop.cl_step == 0 && map_.occupiedCount() > 0) {
+  if (loop_ && frames_ % config_.loop.cl_step == 0 && map_.occupiedCount() > 0) {
     out.loop_attempted = true;
-    out.loop = closeLoop(map_, depth, intrinsics_, config_.range, T_W_C, config_.loop);
+    out.loop = loop_->attempt(depth, stamp_s, T_O_C, T_M_O);
     raycast_ms_.add(out.loop.ms_raycast);
     ++loop_attempts_;
     if (out.loop.accepted) {
       ++loop_accepted_;
       out.T_W_C = out.loop.T_W_C;
+      out.correction = out.loop.correction;
     }
   }
   out.fuse = fuse(depth, out.T_W_C);

@@ -9,8 +9,10 @@
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
+#include "depth_track/core/map/map_raycaster.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/registration.hpp"
+#include "depth_track/core/running_stats.hpp"
 
 namespace depth_track {
 
@@ -71,6 +73,15 @@ struct LoopClosureConfig {
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
 };
 
+/// The map -> odom correction (REP 105): T_M_O maps poses of the odometry frame, in which the
+/// tracker runs undisturbed, into the map frame. Stamped with the time of the frame it was
+/// computed for: the mapper may run frames behind the tracker, and the correction stays valid
+/// for the odometry poses after that frame (until the next one).
+struct MapCorrection {
+  double stamp_s = 0.0;
+  Eigen::Isometry3d T_M_O = Eigen::Isometry3d::Identity();
+};
+
 /// Outcome of one attempt.
 struct LoopClosureResult {
   bool accepted = false;
@@ -84,6 +95,40 @@ struct LoopClosureResult {
   int model_cells = 0, current_cells = 0, matches = 0;
   double error_rms_m = 0.0;
   double ms_raycast = 0.0, ms_reduce = 0.0, ms_register = 0.0;
+  /// T_M_O after the attempt: T_W_C T_O_C^-1 when accepted, the correction it started from
+  /// when rejected; stamped with the attempt's frame.
+  MapCorrection correction;
+};
+
+/// The loop-closure stage: built once for a map, a camera and a config (its ray caster keeps
+/// its scratch between attempts), it corrects the map -> odom transform against the map.
+/// Thread-safe against a MapFuser writing the map on another thread (the cast holds the map's
+/// read lock); not thread-safe itself (one instance per thread).
+class LoopCloser {
+ public:
+  /// `map` must outlive the stage. Throws std::invalid_argument listing every problem of the
+  /// config, intrinsics or range.
+  LoopCloser(const VoxelMap& map, const PinholeIntrinsics& intrinsics, const DepthRange& range,
+             const LoopClosureConfig& config);
+
+  /// One attempt for the full-resolution frame `current` (metres) seen at stamp_s from T_O_C in
+  /// the odometry frame, with T_M_O the correction in force: the virtual view is cast at the
+  /// prediction T_M_O T_O_C, and an accepted registration gives T_W_C (map frame) and the new
+  /// correction T_M_O' = T_W_C T_O_C^-1 stamped stamp_s. Gates and errors as closeLoop().
+  LoopClosureResult attempt(const DepthImage& current, double stamp_s,
+                            const Eigen::Isometry3d& T_O_C,
+                            const Eigen::Isometry3d& T_M_O = Eigen::Isometry3d::Identity());
+
+  const LoopClosureConfig& config() const { return config_; }
+  /// ms per attempt (ray cast, reductions and registration).
+  const RunningStats& timing() const { return timing_; }
+
+ private:
+  PinholeIntrinsics intrinsics_;       ///< the camera's
+  PinholeIntrinsics cast_intrinsics_;  ///< of the virtual image (downsampled)
+  LoopClosureConfig config_;
+  MapRayCaster caster_;
+  RunningStats timing_;
 };
 
 /// One loop-closure attempt for the current full-resolution frame `current` (metres) predicted at
@@ -91,7 +136,8 @@ struct LoopClosureResult {
 /// reduced with config.pca, and the current cells are registered onto the virtual ones from the
 /// identity. Never throws for a poor model or fit (those are rejections with a reason); throws
 /// std::invalid_argument for a bad config or pose and DepthInputError for a frame of the wrong
-/// size. Thread-safe against other const uses of the map.
+/// size. Thread-safe against other uses of the map. A LoopCloser built for the call; its
+/// correction starts from the identity (map frame = the tracker's world).
 LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
                             const PinholeIntrinsics& intrinsics, const DepthRange& range,
                             const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config);

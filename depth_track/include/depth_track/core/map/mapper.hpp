@@ -1,10 +1,11 @@
 #pragma once
-/// The mapping stages composed for one camera stream: the map storage with a fuser and a ray
-/// caster over it; loop closure every CLStep frames, then fusion of the full frame at
+/// The mapping stages composed for one camera stream: the map storage with a fuser, a ray caster
+/// and a loop closer over it; loop closure every CLStep frames, then fusion of the full frame at
 /// the (corrected) pose; ray casting on request; `.bt` save; per-stage timings. Used the same
 /// way by the offline tool and the graph. ROS-free core; not thread-safe (one instance per
 /// camera stream; the graph shares map() between its own fusion and loop-closure stages).
 #include <Eigen/Geometry>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -32,6 +33,10 @@ struct MapperFrame {
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();  ///< pose the frame was fused at
   bool loop_attempted = false;
   LoopClosureResult loop;  ///< meaningful when loop_attempted
+  /// processOdom: the map -> odom correction in force after the frame, stamped with the frame it
+  /// was computed for. process(), whose caller moves the tracker instead: this frame's own
+  /// correction (identity unless one was accepted).
+  MapCorrection correction;
   FuseStats fuse;
 };
 
@@ -49,6 +54,12 @@ class Mapper {
   /// accepted the caller should hand the returned pose to Tracker::correctPose(). Errors as
   /// VoxelMap::fuse (the map is unchanged on a throw).
   MapperFrame process(const DepthImage& depth, const Eigen::Isometry3d& T_W_C);
+  /// One tracked frame as the graph runs it: the tracker stays in its odometry frame (T_O_C, not
+  /// corrected), the mapper keeps the map -> odom correction T_M_O, predicts T_M_O T_O_C, lets
+  /// loop closure update T_M_O (stamped stamp_s) and fuses at the map-frame pose. The poses
+  /// equal process() with corrections fed back into the tracker, up to rounding. Errors as
+  /// process().
+  MapperFrame processOdom(const DepthImage& depth, double stamp_s, const Eigen::Isometry3d& T_O_C);
   /// Fuses a frame at a known pose (no loop closure), e.g. a ground-truth trajectory.
   FuseStats fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C);
   /// Virtual depth image of the map at T_W_C with the camera's intrinsics and range (timed).
@@ -59,6 +70,8 @@ class Mapper {
   const VoxelMap& map() const { return map_; }
   VoxelMap& map() { return map_; }
   const MapperConfig& config() const { return config_; }
+  /// The map -> odom correction kept by processOdom (identity until one is accepted).
+  const MapCorrection& correction() const { return correction_; }
   int loopAttempts() const { return loop_attempts_; }
   int loopAccepted() const { return loop_accepted_; }
   /// Median wall time of the last RunningStats::kDefaultWindow fuse calls / ray casts, ms (0
@@ -72,11 +85,16 @@ class Mapper {
   std::string summary() const;
 
  private:
+  MapperFrame step(const DepthImage& depth, double stamp_s, const Eigen::Isometry3d& T_O_C,
+                   const Eigen::Isometry3d& T_M_O);
+
   PinholeIntrinsics intrinsics_;
   MapperConfig config_;
   VoxelMap map_;
   MapFuser fuser_;
   MapRayCaster raycaster_;
+  std::unique_ptr<LoopCloser> loop_;  ///< when loop closure is enabled
+  MapCorrection correction_;
   int frames_ = 0;
   int loop_attempts_ = 0, loop_accepted_ = 0;
   RunningStats fuse_ms_, raycast_ms_;
