@@ -10,6 +10,7 @@
 
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 
 using namespace depth_track;
 
@@ -246,8 +247,7 @@ TEST(Evaluation, StillCameraOnTheTeddyRun) {
   // the checkers print exactly this code's numbers (the values below, tolerance = rounding of
   // the 9 printed decimals); on the raw file they differ by < 2e-4 relative (e.g. 11.422 vs
   // 11.424 deg, 964.77 vs 964.94 mm), which the ATE (positions only) does not see at all.
-  const std::string dir = std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy";
-  if (!std::ifstream(dir + "/depth.txt")) GTEST_SKIP() << "shared teddy data not found: " << dir;
+  DT_TEDDY_OR_SKIP(dir);
   Trajectory still;
   for (const TumFrame& f : readTumFrameList(dir + "/depth.txt"))
     still.push_back({f.stamp_s, Eigen::Isometry3d::Identity()});

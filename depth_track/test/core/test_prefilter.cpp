@@ -11,6 +11,7 @@
 
 #include "depth_track/core/prefilter.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 
 using namespace depth_track;
 
@@ -377,9 +378,8 @@ TEST(Prefilter, SeparableApproximationSmoothsLikeTheFullKernel) {
 }
 
 TEST(Prefilter, TeddyFrameStaysWithinTheDepthCutoff) {
-  const std::string list =
-      std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy/depth.txt";
-  if (!std::ifstream(list)) GTEST_SKIP() << "shared teddy data not found: " << list;
+  DT_TEDDY_OR_SKIP(teddy);
+  const std::string list = teddy + "/depth.txt";
   const DepthImage d =
       loadTumDepth(readTumFrameList(list).front().path, 1.0 / 5000.0, DepthRange{0.1, 10.0});
   PrefilterConfig c;

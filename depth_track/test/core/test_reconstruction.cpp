@@ -10,6 +10,7 @@
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/reconstruction.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 
 using namespace depth_track;
 
@@ -245,9 +246,8 @@ TEST(Reconstruction, NoisyPlaneThroughReduceToCellsIsRecoveredWithinTheFitError)
 }
 
 TEST(Reconstruction, TeddyFrameIsReproducedWithinKinectNoise) {
-  const std::string list =
-      std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy/depth.txt";
-  if (!std::ifstream(list)) GTEST_SKIP() << "shared teddy data not found";
+  DT_TEDDY_OR_SKIP(teddy);
+  const std::string list = teddy + "/depth.txt";
   const auto frames = readTumFrameList(list);
   const DepthImage d = loadTumDepth(frames.front().path, 1.0 / 5000.0, DepthRange{0.1, 10.0});
   PcaConfig pca;

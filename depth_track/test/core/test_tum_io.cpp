@@ -10,26 +10,11 @@
 #include <vector>
 
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 
 using namespace depth_track;
 
 namespace {
-
-// The TUM teddy sample lives outside the repository (shared/data next to the checkout); tests
-// that need it skip, naming the path, on a machine without it.
-std::string teddyDir() {
-  for (const std::string& dir : {std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy",
-                                 std::string("/work/shared/data/tum_fr3_teddy")}) {
-    if (std::ifstream(dir + "/depth.txt")) return dir;
-  }
-  return "";
-}
-
-#define REQUIRE_TEDDY()                                                                \
-  if (teddyDir().empty()) {                                                            \
-    GTEST_SKIP() << "TUM teddy data not found (shared/data/tum_fr3_teddy next to the " \
-                    "repository or /work/shared/data/tum_fr3_teddy)";                  \
-  }
 
 std::string tempDir() {
   static std::string dir = [] {
@@ -174,8 +159,8 @@ TEST(Png16, InterlacedFileIsReadWhole) {
 }
 
 TEST(TumDepth, TeddyFirstFrame) {
-  REQUIRE_TEDDY();
-  const auto frames = readTumFrameList(teddyDir() + "/depth.txt");
+  DT_TEDDY_OR_SKIP(teddy);
+  const auto frames = readTumFrameList(teddy + "/depth.txt");
   ASSERT_EQ(frames.size(), 200u);
   EXPECT_NEAR(frames.front().stamp_s, 1341841873.273820, 1e-6);
   // The dataset lists frames at the Kinect's 30 Hz.
@@ -288,9 +273,9 @@ TEST(TumTrajectory, NearestStampAssociation) {
 }
 
 TEST(TumTrajectory, TeddyDepthFramesAssociateWithGroundTruth) {
-  REQUIRE_TEDDY();
-  const auto frames = readTumFrameList(teddyDir() + "/depth.txt");
-  const Trajectory gt = readTumTrajectory(teddyDir() + "/groundtruth.txt");
+  DT_TEDDY_OR_SKIP(teddy);
+  const auto frames = readTumFrameList(teddy + "/depth.txt");
+  const Trajectory gt = readTumTrajectory(teddy + "/groundtruth.txt");
   EXPECT_EQ(gt.size(), 773u);
   std::vector<double> stamps;
   for (const auto& f : frames) stamps.push_back(f.stamp_s);

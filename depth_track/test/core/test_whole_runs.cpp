@@ -11,6 +11,8 @@
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
+#include "test_seed.hpp"
 
 using namespace depth_track;
 
@@ -26,12 +28,13 @@ RunResult trackRendered(const std::string& name, const TrackerConfig& cfg,
   const sim::RenderedRun run = sim::makeRun(name);
   const sim::NoiseConfig noise = sim::NoiseConfig::forModel(noise_model);
   Tracker tracker(run.intrinsics, cfg);
+  const std::uint64_t seed = dt_test::runSeed(1);
   const std::size_t n = run.size();
   std::vector<Eigen::Isometry3d> est, gt;
   RunResult r;
   for (std::size_t i = 0; i < n; ++i) {
     const FrameStatus st =
-        tracker.track(run.renderFrame(i, noise, /*run_seed=*/1), run.stamps_s[i]);
+        tracker.track(run.renderFrame(i, noise, seed), run.stamps_s[i]);
     r.tracked += st.tracked;
     est.push_back(st.T_W_C);
     gt.push_back(run.T_W_C[i]);
@@ -57,11 +60,6 @@ void expectTrackedWithin(const RunResult& r, double max_deg, double max_mm) {
   EXPECT_EQ(r.tracked, r.frames);
   EXPECT_LE(r.errors.max_err_deg.maxCoeff(), max_deg);
   EXPECT_LE(r.errors.max_err_mm.maxCoeff(), max_mm);
-}
-
-std::string teddyDir() {
-  if (const char* env = std::getenv("DT_TUM_TEDDY")) return env;
-  return std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy";
 }
 
 }  // namespace
@@ -103,8 +101,7 @@ TEST(WholeRun, Xtest1ChairD435Preset) {
 // Real Kinect data with motion-capture ground truth. Open3D frame-to-frame point-to-plane ICP
 // scores 0.38 m here, a still camera 0.57 m. Target: ATE RMSE <= 0.10 m.
 TEST(WholeRun, TumTeddyRealKinect) {
-  const std::string dir = teddyDir();
-  if (!std::filesystem::exists(dir + "/depth.txt")) GTEST_SKIP() << "no TUM teddy data at " << dir;
+  DT_TEDDY_OR_SKIP(dir);
   const std::vector<TumFrame> frames = readTumFrameList(dir + "/depth.txt");
   TrackerConfig cfg;
   loadTrackerParamsYaml(std::string(DT_SOURCE_DIR) + "/../config/tum_kinect.yaml", cfg);

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 #include "tool_test.hpp"
 
 #if !defined(EVALUATE_BAG) || !defined(MAKE_SCENARIO_BAG) || !defined(TUM_TO_BAG) || \
@@ -39,14 +40,6 @@ using tool_test::ToolRun;
 
 namespace {
 
-std::string sharedDir(const std::string& sub) {
-  for (const std::string& d :
-       {std::string(DT_SOURCE_DIR) + "/../../shared/" + sub,
-        std::string(DT_SOURCE_DIR) + "/../../../shared/" + sub, "/work/shared/" + sub})
-    if (fs::exists(d)) return d;
-  ADD_FAILURE() << "shared/" << sub << " not found next to the repository";
-  return "/work/shared/" + sub;
-}
 
 ToolRun evaluate(const std::string& args, const std::string& dir) {
   return tool_test::runTool(EVALUATE_BAG, args + " --quiet", dir);
@@ -79,10 +72,11 @@ Summary lastLine(const std::string& output) {
 }
 
 // One python checker's output line.
-std::string checker(const std::string& script, const std::string& est, const std::string& gt,
-                    const std::string& dir) {
-  const ToolRun r = tool_test::runTool("/usr/bin/python3 " + sharedDir("tools") + "/" + script,
-                                       est + " " + gt, dir);
+// `tools` = the shared checkers' folder (DT_SHARED_DATA_OR_SKIP(tools, "tools", ...)).
+std::string checker(const std::string& tools, const std::string& script, const std::string& est,
+                    const std::string& gt, const std::string& dir) {
+  const ToolRun r =
+      tool_test::runTool("/usr/bin/python3 " + tools + "/" + script, est + " " + gt, dir);
   EXPECT_EQ(r.rc, 0) << r.output;
   return r.output;
 }
@@ -150,6 +144,7 @@ int bestShift(const std::string& output, const std::string& against) {
 }  // namespace
 
 TEST_F(EvaluateBag, ScoresAgainstGroundTruthAndSensorsAsTheCheckersDo) {
+  DT_SHARED_DATA_OR_SKIP(tools, "tools", "eval_traj.py");
   TmpDir out;
   const ToolRun r = evaluate(bag_ + " --out-dir " + out.path + " --plots", out.path);
   ASSERT_EQ(r.rc, 0) << r.output;
@@ -168,8 +163,8 @@ TEST_F(EvaluateBag, ScoresAgainstGroundTruthAndSensorsAsTheCheckersDo) {
   const std::string est = out.path + "/trajectory.txt",
                     gt = out.path + "/reference_ground_truth.txt";
   ASSERT_TRUE(fs::exists(est) && fs::exists(gt));
-  EXPECT_EQ(field(checker("eval_traj.py", est, gt, out.path), "ate_rmse_m"), s.ate);
-  const std::string pe = checker("pose_errors.py", est, gt, out.path);
+  EXPECT_EQ(field(checker(tools, "eval_traj.py", est, gt, out.path), "ate_rmse_m"), s.ate);
+  const std::string pe = checker(tools, "pose_errors.py", est, gt, out.path);
   EXPECT_EQ(field(pe, "max_err_deg"), s.deg) << pe;
   EXPECT_EQ(field(pe, "max_err_mm"), s.mm) << pe;
   // The L515 defaults on 2 s of RT2: well inside the 0.25 deg / 3 mm chair-run targets.
@@ -383,7 +378,8 @@ TEST_F(EvaluateBag, WithoutSensorsGroundTruthAloneIsUsedAndSaid) {
 
 TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
   TmpDir out;
-  const std::string teddy = sharedDir("data/tum_fr3_teddy");
+  DT_TEDDY_OR_SKIP(teddy);
+  DT_SHARED_DATA_OR_SKIP(tools, "tools", "eval_traj.py");
   const std::string bag = out.path + "/teddy.bag";
   ToolRun r = tool_test::runTool(TUM_TO_BAG, teddy + " " + bag + " --camera fr3", out.path);
   ASSERT_EQ(r.rc, 0) << r.output;
@@ -396,7 +392,7 @@ TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
   EXPECT_EQ(s.frames, 200);
   // eval_traj.py against the sequence's own groundtruth.txt (not the bag's copy).
   const std::string check =
-      checker("eval_traj.py", out.path + "/trajectory.txt", teddy + "/groundtruth.txt", out.path);
+      checker(tools, "eval_traj.py", out.path + "/trajectory.txt", teddy + "/groundtruth.txt", out.path);
   EXPECT_EQ(field(check, "ate_rmse_m"), s.ate) << check;
   EXPECT_EQ(field(check, "frames"), "196") << check;  // frames with motion capture
   // The README's figure for this preset: 0.056 m (P2L); a tracker gone wrong scores >= 0.2 m.

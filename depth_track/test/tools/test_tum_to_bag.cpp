@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "depth_track/core/tum_io.hpp"
+#include "../shared_data.hpp"
 #include "tool_test.hpp"
 #include "tum_bag.hpp"
 
@@ -34,18 +35,6 @@ namespace fs = std::filesystem;
 using namespace depth_track;
 
 namespace {
-
-std::string teddyDir() {
-  std::vector<std::string> candidates;
-  if (const char* env = std::getenv("DT_TUM_TEDDY")) candidates.push_back(env);
-  candidates.push_back(std::string(DT_SOURCE_DIR) + "/../../shared/data/tum_fr3_teddy");
-  candidates.push_back("/work/shared/data/tum_fr3_teddy");
-  for (const auto& d : candidates)
-    if (fs::exists(d + "/depth.txt")) return d;
-  ADD_FAILURE() << "TUM fr3/teddy not found (set DT_TUM_TEDDY, or shared/data/tum_fr3_teddy next "
-                   "to the repository)";
-  return candidates.back();
-}
 
 using tool_test::TmpDir;
 using tool_test::ToolRun;
@@ -71,9 +60,9 @@ void writeLines(const std::string& path, const std::vector<std::string>& ls) {
 struct SmallFolder {
   std::string dir;
   std::vector<std::string> depth_lines;  ///< depth.txt as written, header included
-  SmallFolder(const std::string& root, int n) : dir(root + "/rgbd_dataset_freiburg3_small") {
+  SmallFolder(const std::string& root, const std::string& teddy, int n)
+      : dir(root + "/rgbd_dataset_freiburg3_small") {
     fs::create_directories(dir + "/depth");
-    const std::string teddy = teddyDir();
     int frames = 0;
     for (const std::string& l : lines(teddy + "/depth.txt")) {
       if (l.empty() || l[0] == '#') {
@@ -131,8 +120,8 @@ std::vector<boost::shared_ptr<M>> readTopic(const std::string& bag_path, const s
 }  // namespace
 
 TEST(TumToBag, TeddyReadsBackAsWritten) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  const std::string teddy = teddyDir();
   const std::string bag = tmp.path + "/teddy.bag";
   const ToolRun r = runTool(teddy + " " + bag + " --camera fr3", tmp.path);
   ASSERT_EQ(r.rc, 0) << r.output;
@@ -231,8 +220,9 @@ TEST(TumToBag, TeddyReadsBackAsWritten) {
 }
 
 TEST(TumToBag, MaxFramesKeepsTheGroundTruthThatCanPair) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 12);
+  SmallFolder f(tmp.path, teddy, 12);
   const std::string bag = tmp.path + "/cut.bag";
   const ToolRun r = runTool(f.dir + " " + bag + " --camera fr3 --max-frames 10", tmp.path);
   ASSERT_EQ(r.rc, 0) << r.output;
@@ -254,15 +244,17 @@ TEST(TumToBag, RefusesAMissingFolder) {
 }
 
 TEST(TumToBag, RefusesAFolderWithoutFrameList) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   fs::remove(f.dir + "/depth.txt");
   expectFolderRefused(f, tmp, "depth.txt: cannot open");
 }
 
 TEST(TumToBag, NamesTheMalformedFrameListLine) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   auto ls = f.depth_lines;  // 3 header lines, then frames on lines 4..6
   ls.insert(ls.begin() + 4, "1341841873.3 depth/a.png extra");
   writeLines(f.dir + "/depth.txt", ls);
@@ -270,15 +262,17 @@ TEST(TumToBag, NamesTheMalformedFrameListLine) {
 }
 
 TEST(TumToBag, NamesAListedImageThatIsMissing) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   fs::remove(f.framePath(2));
   expectFolderRefused(f, tmp, "depth.txt:6: listed image");
 }
 
 TEST(TumToBag, NamesTheMalformedGroundTruthLine) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   auto ls = lines(f.dir + "/groundtruth.txt");
   ls[5] = "1341841873.4451 -2.17 0.68 1.48 -0.26 0.79 -0.51";  // 7 fields on line 6
   writeLines(f.dir + "/groundtruth.txt", ls);
@@ -286,8 +280,9 @@ TEST(TumToBag, NamesTheMalformedGroundTruthLine) {
 }
 
 TEST(TumToBag, MissingGroundTruthNeedsConsent) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   fs::remove(f.dir + "/groundtruth.txt");
   expectFolderRefused(f, tmp, "groundtruth.txt: missing");
   const std::string out = tmp.path + "/x.bag";
@@ -298,8 +293,9 @@ TEST(TumToBag, MissingGroundTruthNeedsConsent) {
 }
 
 TEST(TumToBag, NamesAnUnreadablePng) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 4);
+  SmallFolder f(tmp.path, teddy, 4);
   const std::string bad = f.framePath(2);
   writeLines(bad, {"not an image"});
   expectFolderRefused(f, tmp, bad + ": not a PNG file");
@@ -313,15 +309,17 @@ TEST(TumToBag, NamesAnUnreadablePng) {
 }
 
 TEST(TumToBag, NamesAFrameOfAnotherSize) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   writePng16(f.framePath(1), std::vector<std::uint16_t>(320 * 240, 10000), 320, 240);
   expectFolderRefused(f, tmp, f.framePath(1) + ": 320x240 image, the first frame is 640x480");
 }
 
 TEST(TumToBag, RefusesStampsOutOfOrder) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   auto ls = f.depth_lines;
   std::swap(ls[4], ls[5]);
   writeLines(f.dir + "/depth.txt", ls);
@@ -329,8 +327,9 @@ TEST(TumToBag, RefusesStampsOutOfOrder) {
 }
 
 TEST(TumToBag, AsksForIntrinsicsAndSuggestsTheCamera) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 2);
+  SmallFolder f(tmp.path, teddy, 2);
   expectFolderRefused(f, tmp, "--camera fr3", "");
   expectFolderRefused(f, tmp, "--fx --fy --cx --cy go together", "--fx 500 --fy 500");
   expectFolderRefused(f, tmp, "--camera 'fr4': expected fr1, fr2 or fr3", "--camera fr4");
@@ -346,8 +345,9 @@ TEST(TumToBag, AsksForIntrinsicsAndSuggestsTheCamera) {
 }
 
 TEST(TumToBag, KeepsAnExistingBag) {
+  DT_TEDDY_OR_SKIP(teddy);
   TmpDir tmp;
-  SmallFolder f(tmp.path, 3);
+  SmallFolder f(tmp.path, teddy, 3);
   const std::string out = tmp.path + "/x.bag";
   writeLines(out, {"an earlier recording"});
   const ToolRun r = runTool(f.dir + " " + out + " --camera fr3", tmp.path);
