@@ -42,8 +42,9 @@ TEST(DepthImage, BadInputIsNamed) {
   EXPECT_THROW(parseDepthEncoding("bgr8"), DepthInputError);
   try {
     parseDepthEncoding("8UC3");
+    ADD_FAILURE() << "parseDepthEncoding(\"8UC3\") accepted a colour encoding";
   } catch (const DepthInputError& e) {
-    EXPECT_NE(std::string(e.what()).find("8UC3"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("8UC3"), std::string::npos) << e.what();
   }
   const std::uint16_t raw[4] = {};
   EXPECT_THROW(depthFromRaw(raw, 4, 1, 4, DepthEncoding::kU16, 0.001, DepthRange{}), DepthInputError);

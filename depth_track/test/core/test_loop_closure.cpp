@@ -17,6 +17,7 @@
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
+#include "test_seed.hpp"
 
 using namespace depth_track;
 
@@ -145,9 +146,9 @@ RunErrors driftingOdometryRun(const sim::RenderedRun& run, const std::vector<Dep
   }
   e.attempts = mapper.loopAttempts();
   e.accepted = mapper.loopAccepted();
-  std::printf("drifting odometry %s: end drift %.1f mm, max error %.1f mm, %s\n",
-              loop ? "with loop closure" : "open loop", 1000 * e.end_m, 1000 * e.max_m,
-              mapper.summary().c_str());
+  std::printf("drifting odometry %s, %zu frames: end drift %.1f mm, max error %.1f mm, %s\n",
+              loop ? "with loop closure" : "open loop", frames.size(), 1000 * e.end_m,
+              1000 * e.max_m, mapper.summary().c_str());
   return e;
 }
 
@@ -155,8 +156,8 @@ TEST(LoopClosure, RevisitRunDriftsLessWithLoopClosure) {
   // Room3 at 10 Hz (every 3rd frame: 3 cm and 2.5 deg per frame), 1.3 of its 2 laps and 1 cm
   // voxels keep the test short; the second lap revisits the start. On this clean rendered run
   // our tracker drifts only millimetres, below what a 1 cm map resolves, so the drift that loop
-  // closure must remove comes from an odometry bias of 0.03 deg and 0.5 mm per frame
-  // (about 6 deg and 0.1 m over the run).
+  // closure must remove comes from an odometry bias of 0.015 deg and 0.3 mm per frame
+  // (driftingOdometryRun; 191 frames, so about 2.9 deg and 57 mm of accumulated bias).
   const sim::RenderedRun run = sim::makeRun("room3");
   const int step = 3;
   const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
@@ -194,9 +195,10 @@ TrackedPair trackWithAndWithoutLoopClosure(const std::string& name, bool bounded
   mc.range = run.range;
   mc.loop.enabled = true;
   Mapper mapper(run.intrinsics, mc, closed.pose());
+  const std::uint64_t seed = dt_test::runSeed(1);
   std::vector<Eigen::Isometry3d> est_open, est_closed;
   for (std::size_t i = 0; i < run.size(); ++i) {
-    const DepthImage d = run.renderFrame(i, noise, /*run_seed=*/1);
+    const DepthImage d = run.renderFrame(i, noise, seed);
     est_open.push_back(open.track(d, run.stamps_s[i]).T_W_C);
     const FrameStatus st = closed.track(d, run.stamps_s[i]);
     const MapperFrame mf = mapper.process(d, st.T_W_C);

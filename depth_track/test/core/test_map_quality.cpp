@@ -12,6 +12,7 @@
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
+#include "test_seed.hpp"
 
 using namespace depth_track;
 
@@ -56,15 +57,16 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   Mapper truth(run.intrinsics, mc, run.T_W_C.front());
   Tracker tracker(run.intrinsics, TrackerConfig{}, run.T_W_C.front());
   std::vector<Eigen::Vector3d> surface;
+  const std::uint64_t seed = dt_test::runSeed(11);
   // Every 4th frame (40 mm steps) keeps the test short.
   for (std::size_t i = 0; i < run.size(); i += 4) {
-    const DepthImage d = run.renderFrame(i, noise, 11, 2);
+    const DepthImage d = run.renderFrame(i, noise, seed, 2);
     const FrameStatus st = tracker.track(d, run.stamps_s[i]);
     tracked.process(d, st.T_W_C);
     one_hit.process(d, st.T_W_C);
     truth.fuse(d, run.T_W_C[i]);
     if (i % 20 == 0) {  // visible true surface: noise-free render, every 4th pixel
-      const DepthImage c = run.renderFrame(i, clean, 11, 2);
+      const DepthImage c = run.renderFrame(i, clean, seed, 2);
       for (int v = 0; v < c.height; v += 4)
         for (int u = 0; u < c.width; u += 4)
           if (c.at(u, v) > 0) {

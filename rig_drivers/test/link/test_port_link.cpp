@@ -116,6 +116,8 @@ TEST(BoardLink, HandshakeCommandsAndThirtyHertzStream) {
   EXPECT_EQ(r.status, protocol::AckStatus::kDone);
   const auto seqs = board.seqsReceived();
   EXPECT_NE(std::find(seqs.begin(), seqs.end(), r.seq), seqs.end());
+  // Every number the track host sent (vers, init) is in the track board's class, n * 4 + 1.
+  for (const std::uint32_t s : seqs) EXPECT_EQ(s % 4, 1u) << "seq " << s;
 
   protocol::CmdMode mode;
   mode.mode = 2;
@@ -226,17 +228,19 @@ TEST(BoardLink, WrongBoardOnThePortIsRefusedWithANamedReason) {
   link->stop();
 }
 
+// docs/rigs.md: command numbers are n * 4 + board id (track 1, car 2, truck 3), n counting up
+// from the start value, so the hosts of one rig never collide.
 TEST(SequenceCounter, HostsOfOneRigNeverShareANumber) {
-  SequenceCounter track(BoardId::kTrack, 1000), car(BoardId::kCar, 1000);
+  SequenceCounter track(BoardId::kTrack, 1000), car(BoardId::kCar, 1000),
+      truck(BoardId::kTruck, 1000);
   std::set<std::uint32_t> seen;
-  std::uint32_t prev_t = 0, prev_c = 0;
-  for (int i = 0; i < 1000; ++i) {
-    const auto t = track.next(), c = car.next();
-    EXPECT_GT(t, prev_t);
-    EXPECT_GT(c, prev_c);
-    prev_t = t;
-    prev_c = c;
+  for (std::uint32_t n = 1000; n < 2000; ++n) {
+    const auto t = track.next(), c = car.next(), k = truck.next();
+    EXPECT_EQ(t, n * 4 + 1);
+    EXPECT_EQ(c, n * 4 + 2);
+    EXPECT_EQ(k, n * 4 + 3);
     EXPECT_TRUE(seen.insert(t).second);
     EXPECT_TRUE(seen.insert(c).second);
+    EXPECT_TRUE(seen.insert(k).second);
   }
 }

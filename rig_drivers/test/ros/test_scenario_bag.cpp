@@ -1,6 +1,8 @@
 // Bag check of the rig simulator: a short generated scenario bag has the expected topics, message
-// counts and monotonic stamps, is deterministic, and its rig readings agree with its ground truth
-// to within the modelled errors. Runs make_scenario_bag (no roscore needed).
+// counts and monotonic stamps, every connection carries its type for other readers, its depth is
+// 16UC1 L515 data within the camera's range, and it is deterministic. Whether the rig readings in
+// such a bag agree with its ground truth is checked by dt_test_evaluate_bag (sensor errors within
+// their physical bounds) and rig_test_rig_sim. Runs make_scenario_bag (no roscore needed).
 #include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
 #include <rig_msgs/CarriageSensors.h>
