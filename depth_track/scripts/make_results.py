@@ -556,10 +556,15 @@ def write_page(bags, args):
     w("")
     stamps = [os.path.getmtime(os.path.join(v["dir"], "report.txt")) for v in runs.values() if v]
     if stamps:
-        w("Runs finished between %s and %s UTC. The bags were generated before, by "
-          "`bags/generate_bags.sh` (L515) and this script (D435, TUM); the bags are not in git." % (
+        w("Runs finished between %s and %s UTC, by `evaluate_bag` built %s UTC (binaries %s). "
+          "The bags were generated before, by `bags/generate_bags.sh` (L515) and this script "
+          "(D435, TUM); the bags are not in git." % (
               datetime.datetime.utcfromtimestamp(min(stamps)).strftime("%Y-%m-%d %H:%M"),
-              datetime.datetime.utcfromtimestamp(max(stamps)).strftime("%H:%M")))
+              datetime.datetime.utcfromtimestamp(max(stamps)).strftime("%H:%M"),
+              datetime.datetime.utcfromtimestamp(os.path.getmtime(EVALUATE_BAG)).strftime(
+                  "%H:%M"), binaries_hash()[:10]))
+        if args.runs_note:
+            w(args.runs_note)
         w("")
 
     def row_for(name, config, role="ground_truth", euler=True):
@@ -897,6 +902,8 @@ def main():
     ap.add_argument("--plots", default="all",
                     help="bags whose default run makes plots and a map (comma separated; "
                     "default all)")
+    ap.add_argument("--runs-note", default="",
+                    help="a sentence for the page on where the runs' binaries came from")
     ap.add_argument("--configs", default="", help="run only these configurations (names)")
     ap.add_argument("--cameras", default="",
                     help="make and run only these bags: l515,d435,kinect (default all; the page "
