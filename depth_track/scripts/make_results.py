@@ -439,6 +439,10 @@ def f3(v):
     return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.3f" % v
 
 
+def f4(v):
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.4f" % v
+
+
 def f2(v):
     return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else "%.2f" % v
 
@@ -708,8 +712,8 @@ def write_page(bags, args):
     for noise, suffix in (("l515", ""), ("d435", "_D435")):
         w("## Every scenario, %s noise: the defaults and the best configuration" % noise.upper())
         w("")
-        w("Against ground truth. *Best* = lowest ATE among the configurations that tracked every "
-          "frame.")
+        w("Against ground truth. *Best* = lowest ATE among the configurations run for this page "
+          "that tracked every frame (see *What was run*).")
         w("")
         w("| scenario | configuration | tracked | errTx | errTy | errTz | errDx | errDy | errDz | "
           "ATE m | drift mm | ms | cpu |")
@@ -735,7 +739,7 @@ def write_page(bags, args):
                 g = r["scores"].get("ground_truth")
                 w("| %s | %s: %s | %d/%d %s| %s | %s | %s | %s |" % (
                     name, label, describe(config), r["tracked"], r["frames"],
-                    axes_cells(axes_of(g, True)), f3(g["ate_rmse_m"]) if g else "—",
+                    axes_cells(axes_of(g, True)), f4(g["ate_rmse_m"]) if g else "—",
                     f1(g["end_drift_mm"]) if g else "—", f1(r["median_ms"]), f1(r["cpu_ms"])))
             if default and default["tracked"] < default["frames"]:
                 worse.append("%s: the defaults flag %d of %d frames" % (
@@ -761,8 +765,8 @@ def write_page(bags, args):
                 continue
             g = r["scores"].get("ground_truth")
             w("| %s | %s | %d/%d | %s | %s | %s | %s |" % (
-                seq, describe(config), r["tracked"], r["frames"], f3(g["ate_rmse_m"]) if g else "—",
-                f3(g["rpe_1s_m"]) if g else "—", f1(r["median_ms"]), f1(r["cpu_ms"])))
+                seq, describe(config), r["tracked"], r["frames"], f4(g["ate_rmse_m"]) if g else "—",
+                f4(g["rpe_1s_m"]) if g else "—", f1(r["median_ms"]), f1(r["cpu_ms"])))
     w("")
     w("### Peers on the same frames (`dt_peers`)")
     w("")
@@ -862,7 +866,7 @@ def write_page(bags, args):
             sn = r["scores"].get("sensors")
             w("| `%s` | %d/%d %s| %s %s| %s | %s |" % (
                 c, r["tracked"], r["frames"], axes_cells(axes_of(g, True)),
-                f3(g["ate_rmse_m"]) if g else "—", axes_cells(axes_of(sn, True)),
+                f4(g["ate_rmse_m"]) if g else "—", axes_cells(axes_of(sn, True)),
                 f1(r["median_ms"]), f1(r["cpu_ms"])))
         w("")
         w("</details>")
