@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <numeric>
 #include <vector>
 
@@ -110,8 +111,21 @@ TEST(ServoModel, SlowSineShowsStickSlipAndLag) {
     stuck_samples += ang[i] == before;
     max_err_sp = std::max(max_err_sp, std::fabs(servo.setPoint() - servo.angle()));
   }
-  // Stick-slip: still most of the time at 10 deg/s peak demand rate, hundreds of sticks.
-  EXPECT_GT(stuck_samples, n / 2);
+  // Stick-slip: the shaft only moves while slipping, at the 120 deg/s rate limit, so it moves
+  // for its travel / rate, plus at most one partial substep per slip; the rest of the time it
+  // is still. Its travel is the demand's 4 x 40 deg (two periods) less what friction and lag
+  // leave out: each of the 4 turning points is reached short by up to a breakaway (two legs
+  // each), and at the end the shaft trails by the lag bound asserted below times the demand
+  // rate, plus a breakaway. Docs/rigs.md: "stuck 95 % of the time (~300 stick-slip events)".
+  const double travel = 4 * 2 * amp, b_max = c.breakaway_deg * (1 + c.breakaway_spread);
+  const double lag_max = c.lag_s + b_max / (2 / kPi * amp * w);
+  const double shortfall = 8 * b_max + amp * w * lag_max + b_max;
+  const double moving_min = (travel - shortfall) / (c.max_rate_deg_s * dt);
+  const double moving_max = (travel + b_max) / (c.max_rate_deg_s * dt) + servo.stickEvents();
+  std::printf("servo on the B4/B5 sine: stuck %.1f %% of the time, %u stick-slip events\n",
+              100.0 * stuck_samples / n, servo.stickEvents());
+  EXPECT_LE(stuck_samples, n - moving_min);
+  EXPECT_GE(stuck_samples, n - moving_max);
   // Travel 4 x 40 deg in steps between kinetic and breakaway (0.15 .. 0.6 deg, +-30 %).
   EXPECT_GT(servo.stickEvents(), 160.0 / (c.breakaway_deg * (1 + c.breakaway_spread)));
   EXPECT_LT(servo.stickEvents(),
@@ -131,8 +145,9 @@ TEST(ServoModel, SlowSineShowsStickSlipAndLag) {
     }
   }
   const double lag = best_k * dt;
+  std::printf("servo lag behind the demand (best cross-correlation shift): %.3f s\n", lag);
   EXPECT_GE(lag, c.lag_s * 0.9);
-  EXPECT_LE(lag, c.lag_s + c.breakaway_deg * (1 + c.breakaway_spread) / (2 / kPi * amp * w));
+  EXPECT_LE(lag, lag_max);
 }
 
 TEST(ServoModel, StepStopsWithinTheFrictionBand) {

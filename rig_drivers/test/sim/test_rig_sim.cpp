@@ -239,6 +239,36 @@ TEST(RigSim, ServoLagsAndSticksBehindDemand) {
   EXPECT_LT(max_lag, lag_bound);
   EXPECT_GT(stuck, 1000);
   EXPECT_GT(slipping, 100);
+  // How much of the time it slips follows from the physics: the shaft only moves while slipping,
+  // at the rate limit, so over the run it moves for its travel / rate, plus at most one partial
+  // step per slip. Its travel is the demand's (through the pulse calibration's gain error),
+  // less up to a breakaway on both legs of each turning point and at either end.
+  const double dt = 1.0 / r.cfg.physics_rate_hz;
+  const auto& servo = r.cfg.pitch_servo;
+  double demand_travel = 0.0, last_step = 0.0;
+  int moving = 0, slips = 0, turns = 0;
+  for (std::size_t k = 1; k < r.truth.size(); ++k) {
+    const double d = r.truth[k].pitch_dem_deg - r.truth[k - 1].pitch_dem_deg;
+    demand_travel += std::abs(d);
+    if (d != 0.0) {
+      turns += last_step * d < 0.0;
+      last_step = d;
+    }
+    const bool moves = r.truth[k].pitch_deg != r.truth[k - 1].pitch_deg;
+    moving += moves;
+    slips += moves && (k < 2 || r.truth[k - 1].pitch_deg == r.truth[k - 2].pitch_deg);
+  }
+  const double travel = demand_travel * (1 + std::abs(r.cfg.servo_gain_error));
+  const double b_max = servo.breakaway_deg * (1 + servo.breakaway_spread);
+  const double step = servo.max_rate_deg_s * dt;
+  std::printf(
+      "RT3 pitch servo: moving %.1f %% of %zu steps in %d slips, demand travel %.0f deg, %d "
+      "turns\n",
+      100.0 * moving / (r.truth.size() - 1), r.truth.size() - 1, slips, demand_travel, turns);
+  EXPECT_GE(moving,
+            (demand_travel * (1 - std::abs(r.cfg.servo_gain_error)) - 2 * b_max * (turns + 1)) /
+                step);
+  EXPECT_LE(moving, (travel + 2 * b_max) / step + slips);
 }
 
 TEST(RigSim, CarriageSensorsSeeTheBeltAndGravity) {
