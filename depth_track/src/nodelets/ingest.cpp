@@ -71,8 +71,10 @@ class IngestNodelet : public nodelet::Nodelet {
     status_pub_ = nh.advertise<rig_msgs::TrackingStatus>("status", 50);
     queue_ = std::make_unique<FrameQueue<Frame>>(mode, replay_queue,
                                                  [this](const Frame& f) { process(f); });
+    // Resolved first: this image_transport appends "/compressedDepth" to the name as given, and
+    // the remapping of image_rect would not reach the transport's subtopic.
     image_sub_ =
-        it.subscribe("image_rect", 50, &IngestNodelet::onImage, this,
+        it.subscribe(nh.resolveName("image_rect"), 50, &IngestNodelet::onImage, this,
                      image_transport::TransportHints(transport, ros::TransportHints(), pnh));
     info_sub_ = nh.subscribe("camera_info", 50, &IngestNodelet::onInfo, this);
     watchdog_.start(nh, "ingest", {image_sub_.getTopic(), info_sub_.getTopic()}, timeout_s);
