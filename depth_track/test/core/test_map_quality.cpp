@@ -98,11 +98,25 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
       100 * q.precision, 100 * q.completeness, q.occupied, 100 * q_gt.precision,
       100 * q_gt.completeness, diff.jaccard, 100 * diff.a_far_fraction, 100 * diff.b_far_fraction,
       tracked.summary().c_str());
-  EXPECT_GE(q.precision, 0.95);
-  EXPECT_GE(q.completeness, 0.9);
-  EXPECT_LT(diff.a_far_fraction, 0.05);
+  // Product target: 95 % precision (README). The guards sit near what is measured, noise seed 11
+  // (committed) / 1 (DT_TEST_SEED=1), 2026-12-01: precision 99.31/99.31 %, completeness
+  // 98.99/99.00 %, strict (centre within 5 mm) 75.09/75.13 %; at the true poses 99.29/99.30 % and
+  // 99.01/99.02 %; tracked vs truth map Jaccard 0.925/0.921, 0.02/0.02 % extruded and missed; one
+  // hit: precision 93.83/93.86 %, completeness 99.77/99.77 %. The seeds differ by <= 0.05 % and
+  // 0.004, so the guards leave 0.3-2 points (the extrusion 5x its measured share): a change in
+  // fusion or tracking that costs the map visibly fails here, not only one that breaks it.
+  EXPECT_GE(q.precision, 0.95);  // product target
+  EXPECT_GE(q.precision, 0.99);
+  EXPECT_GE(q.completeness, 0.985);
+  EXPECT_GE(q_strict.precision, 0.73);
+  EXPECT_GE(q_gt.precision, 0.99);
+  EXPECT_GE(q_gt.completeness, 0.985);
+  EXPECT_GE(diff.jaccard, 0.90);
+  EXPECT_LT(diff.a_far_fraction, 0.001);
+  EXPECT_LT(diff.b_far_fraction, 0.001);
   // With the default threshold a voxel hit once by a stray return counts: measured 93.8 %. The
-  // default stays one hit because loop closure on Room3 does better with it (see README).
-  EXPECT_GE(q_one_hit.precision, 0.92);
+  // default stays one hit because loop closure on Room3 does better with it (docs/mapping.md).
+  EXPECT_GE(q_one_hit.precision, 0.93);
+  EXPECT_GE(q_one_hit.completeness, 0.995);
   EXPECT_LT(q_one_hit.precision, q.precision);
 }
