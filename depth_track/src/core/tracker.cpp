@@ -1,7 +1,6 @@
 #include "depth_track/core/tracker.hpp"
 
 #include <chrono>
-#include <cstdio>
 #include <stdexcept>
 
 namespace depth_track {
@@ -45,34 +44,7 @@ Tracker::Tracker(const PinholeIntrinsics& intrinsics, const TrackerConfig& confi
       pool_(std::make_shared<const WorkerPool>(config_.threads)),
       prefilter_(intrinsics, config_.prefilter, pool_),
       reducer_(intrinsics, config_.pca, pool_),
-      odometry_(intrinsics, config_, T_W_C0),
-      T_W_C0_(T_W_C0) {}
-
-bool Tracker::adaptToFrame(const DepthImage& depth) {
-  NoiseEstimator estimator;
-  estimator.addFrame(depth, intrinsics_);
-  const DepthNoiseModel noise = estimator.model();
-  if (!noise.known()) return false;
-  const double z_ref = estimator.depthQuantile(0.75);
-  const NoiseAdaptation a =
-      adaptToNoise(noise, intrinsics_.fx, config_.pca.cell_size, z_ref, estimator.holeShare());
-  TrackerConfig c = config_;
-  c.pca.noise_sigma_const_m = noise.const_m;
-  c.pca.noise_sigma_quad_per_m = noise.quad_per_m;
-  c.pca.normal_radius_cells = a.normal_radius_cells;
-  c.pca.normal_merge_dist_m = a.normal_merge_dist_m;
-  c.pca.min_valid_fraction = a.min_valid_fraction;
-  c.registration.match.cos_min = a.cos_min;
-  c.registration.huber_delta_m = a.huber_delta_m;
-  c.max_error_rms_m = a.max_error_rms_m;
-  config_ = checked(intrinsics_, c);
-  reducer_ = CellReducer(intrinsics_, config_.pca, pool_);
-  odometry_ = CellOdometry(intrinsics_, config_, T_W_C0_);
-  char z[48];
-  std::snprintf(z, sizeof(z), " at z75=%.2f m: ", z_ref);
-  noise_summary_ = estimator.summary() + z + a.summary();
-  return true;
-}
+      odometry_(intrinsics, config_, T_W_C0) {}
 
 const CellCloud& Tracker::lastCells() const {
   static const CellCloud kEmpty;
@@ -83,8 +55,6 @@ FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
                            const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur) {
   const auto t0 = std::chrono::steady_clock::now();
   checkFrameSize(depth, intrinsics_);
-  // Before the first reference only: the grids of all later frames must match it.
-  if (config_.auto_noise && !adapted_ && !odometry_.reference()) adapted_ = adaptToFrame(depth);
   double ms_prefilter = 0.0;
   std::shared_ptr<const CellCloud> cells;
   if (prefilter_.passthrough()) {

@@ -14,7 +14,6 @@
 #include "depth_track/core/cell_reducer.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
-#include "depth_track/core/noise_model.hpp"
 #include "depth_track/core/prefilter.hpp"
 #include "depth_track/core/prefilter_stage.hpp"
 #include "depth_track/core/registration.hpp"
@@ -29,11 +28,6 @@ struct TrackerConfig : CellOdometryConfig {
   PrefilterConfig prefilter;
   PcaConfig pca;
   int threads = 1;  ///< workers of the shared pool (prefilter and reduction)
-  /// Estimate the depth noise on the first usable frame (NoiseEstimator) and set from it, before
-  /// the first registration: the edge test's noise term, normal pooling (normal_radius,
-  /// normal_merge_dist), min_valid_fraction, cos_min, huber_delta and max_error (adaptToNoise).
-  /// Off: those parameters are used as given (the presets in config/ switch it off).
-  bool auto_noise = true;
 
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
   /// The reduction as the tracker runs it: inverse square roots only when Cell Search's
@@ -73,8 +67,6 @@ class Tracker {
   const CellOdometry& odometry() const { return odometry_; }
   /// ms per track() call, whole frame.
   const RunningStats& timing() const { return timing_; }
-  /// With auto_noise: what was measured and set ("" until then).
-  const std::string& noiseSummary() const { return noise_summary_; }
 
  private:
   PinholeIntrinsics intrinsics_;
@@ -84,12 +76,6 @@ class Tracker {
   CellReducer reducer_;
   CellOdometry odometry_;
   RunningStats timing_;
-  Eigen::Isometry3d T_W_C0_;
-  bool adapted_ = false;
-  std::string noise_summary_;
-  /// Measures the noise on `depth` and rebuilds reducer and odometry with the adapted settings;
-  /// false when the frame holds too few planar cells to tell.
-  bool adaptToFrame(const DepthImage& depth);
 };
 
 }  // namespace depth_track
