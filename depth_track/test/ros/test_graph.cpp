@@ -111,7 +111,8 @@ class Graph {
     const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(timeout_s);
     while (ros::WallTime::now() < end) {
       if (image_.getNumSubscribers() > 0 && info_.getNumSubscribers() > 0 &&
-          status_sub_.getNumPublishers() >= 1 && ros::service::exists("/fusion/save_map", false) &&
+          status_sub_.getNumPublishers() >= 1 && tf_sub_.getNumPublishers() >= 1 &&
+          ros::service::exists("/fusion/save_map", false) &&
           advertised("/loop_closure/status")) {
         // Every nodelet is loaded; give their subscriptions to each other a moment to connect
         // (a mapping nodelet that missed the first frames would count frames differently).
