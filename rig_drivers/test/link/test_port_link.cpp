@@ -105,7 +105,10 @@ TEST(BoardLink, HandshakeCommandsAndThirtyHertzStream) {
   Probe probe;
   auto link = makeLink(dev, BoardId::kTrack, probe);
   link->start();
-  ASSERT_TRUE(waitFor([&] { return link->connected(); }, 3000)) << probe.last();
+  // connected() turns true just before the link thread reports the event: wait for both.
+  ASSERT_TRUE(waitFor([&] { return link->connected() && probe.count(LinkEvent::kConnected) >= 1; },
+                      3000))
+      << probe.last();
   EXPECT_EQ(probe.count(LinkEvent::kConnected), 1);
   EXPECT_NE(probe.last().find("FakeTrackDRV 0.9.1"), std::string::npos) << probe.last();
   EXPECT_EQ(std::string(link->boardVersion().name), "FakeTrackDRV");
@@ -177,7 +180,9 @@ TEST(BoardLink, UnplugIsReportedOnceAndReplugRecoversWithoutRestart) {
   EXPECT_NE(r.message.find(dev), std::string::npos) << r.message;
 
   board.plug();
-  ASSERT_TRUE(waitFor([&] { return link->connected(); }, 3000)) << probe.last();
+  ASSERT_TRUE(waitFor([&] { return link->connected() && probe.count(LinkEvent::kConnected) >= 2; },
+                      3000))
+      << probe.last();
   EXPECT_EQ(probe.count(LinkEvent::kConnected), 2);
   protocol::CmdServo s;
   s.pitch_cdeg = 500;
