@@ -43,6 +43,8 @@ PACKAGES=(
   python3-rostopic python3-rosnode python3-rosservice python3-rosmsg python3-genpy
   python3-std-msgs python3-std-srvs python3-sensor-msgs python3-geometry-msgs python3-nav-msgs
   python3-tf2-msgs python3-visualization-msgs python3-rosgraph-msgs python3-diagnostic-msgs
+  # the graph's /diagnostics and runtime reconfiguration (C++ and the Python client)
+  libdiagnostic-updater-dev libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
   # core libraries
   libeigen3-dev libtbb-dev liboctomap-dev octomap-tools libpng-dev libnanoflann-dev
   libcli11-dev libyaml-cpp-dev

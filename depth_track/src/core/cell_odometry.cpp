@@ -63,6 +63,16 @@ CellOdometry::CellOdometry(const PinholeIntrinsics& intrinsics, const CellOdomet
     throw std::invalid_argument("cell odometry: initial pose is not finite");
 }
 
+void CellOdometry::setConfig(const CellOdometryConfig& config) {
+  const auto problems = config.validate();
+  if (!problems.empty())
+    throw std::invalid_argument("cell odometry config: " + joinProblems(problems));
+  const bool regrid = config.registration.match.search_radius_cells !=
+                      config_.registration.match.search_radius_cells;
+  config_ = config;
+  if (regrid && reference_) grid_.build(*reference_, config_.registration.match.search_radius_cells);
+}
+
 void CellOdometry::setReference(std::shared_ptr<const CellCloud> cells) {
   reference_ = std::move(cells);
   T_W_Cref_ = T_W_C_;

@@ -21,6 +21,7 @@
 #include "depth_track/ros/conversions.hpp"
 #include "depth_track/ros/params.hpp"
 #include "graph_common.hpp"
+#include "graph_diagnostics.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -45,6 +46,8 @@ class FusionNodelet : public nodelet::Nodelet {
     config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
+    diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh), {});
+    diag_.add("map", [this](diagnostic_updater::DiagnosticStatusWrapper& d) { mapTask(d); });
     voxels_pub_ = nh.advertise<sensor_msgs::PointCloud2>("map/voxels", 1, true);
     markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>("map/markers", 10, true);
     save_srv_ = pnh.advertiseService("save_map", &FusionNodelet::onSave, this);
@@ -59,6 +62,31 @@ class FusionNodelet : public nodelet::Nodelet {
   }
 
   void process(const Frame& f) {
+    diag_.input();
+    const auto t0 = std::chrono::steady_clock::now();
+    fuseFrame(f);
+    diag_.processed(msSince(t0));
+    diag_.counts(input_.skipped(), 0);
+  }
+
+  /// The map's size and how often it goes out; WARN while tracked frames leave it empty.
+  void mapTask(diagnostic_updater::DiagnosticStatusWrapper& d) {
+    const std::size_t voxels =
+        ctx_->map.read([](const VoxelMap* map) { return map ? map->occupiedCount() : 0; });
+    const double since = ros::WallTime::now().toSec() - last_publish_wall_s_;
+    if (fused_ > 0 && voxels == 0)
+      d.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                "frames were fused but the map is empty (range / region?)");
+    else
+      d.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%zu occupied voxels", voxels);
+    d.add("occupied voxels", voxels);
+    d.add("frames fused", fused_.load());
+    d.add("frames not fused (not tracked)", not_fused_.load());
+    d.add("publications", publications_.load());
+    d.addf("since last publication (s)", "%.1f", last_publish_wall_s_ > 0 ? since : -1.0);
+  }
+
+  void fuseFrame(const Frame& f) {
     const double stamp = f.image->header.stamp.toSec();
     if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset: not this map's
     try {
@@ -70,6 +98,7 @@ class FusionNodelet : public nodelet::Nodelet {
       const auto X =
           ctx_->map.correctionFor(stamp, mode_ == Mode::kReplay && config_.loop.enabled, 30.0);
       if (!f.status->tracked) {
+        ++not_fused_;
         ctx_->map.fused(stamp);
         return;
       }
@@ -131,6 +160,8 @@ class FusionNodelet : public nodelet::Nodelet {
       std::memcpy(c.data.data(), centres.data(), c.data.size());
       voxels_pub_.publish(c);
     }
+    ++publications_;
+    last_publish_wall_s_ = ros::WallTime::now().toSec();
     if (want_markers) {
       const double tile = 0.5;
       std::unordered_map<std::int64_t, std::vector<Eigen::Vector3f>> by_tile;
@@ -226,7 +257,9 @@ class FusionNodelet : public nodelet::Nodelet {
   MapperConfig config_;
   std::shared_ptr<GraphContext> ctx_;
   double last_stamp_ = -1.0;
-  std::uint64_t fused_ = 0;
+  std::atomic<std::uint64_t> fused_{0}, not_fused_{0}, publications_{0};
+  std::atomic<double> last_publish_wall_s_{0.0};
+  StageDiagnostics diag_;
   std::atomic<bool> map_changed_{false};
   std::unordered_map<std::int64_t, std::pair<std::size_t, int>> tiles_;  // key -> (voxels, id)
   std::unordered_map<std::int64_t, int> tile_ids_;

@@ -425,6 +425,8 @@ class TrackedFrameInput {
     if (queue_) queue_->stop();
   }
   ~TrackedFrameInput() { stop(); }
+  /// Live mode: pairs replaced by a newer one before the worker took them.
+  std::uint64_t skipped() const { return queue_ ? queue_->skipped() : 0; }
 
  private:
   using DepthPair = std::pair<sensor_msgs::ImageConstPtr, sensor_msgs::CameraInfoConstPtr>;

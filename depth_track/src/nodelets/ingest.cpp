@@ -20,6 +20,8 @@
 #include "depth_track/ros/conversions.hpp"
 #include "depth_track/ros/params.hpp"
 #include "graph_common.hpp"
+#include "graph_diagnostics.hpp"
+#include "graph_reconfigure.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -31,6 +33,10 @@ class IngestNodelet : public nodelet::Nodelet {
   }
 
  private:
+  struct Runtime {  // what dynamic_reconfigure may change
+    TrackerConfig tracker;
+    DepthRange range;
+  };
   struct Frame {
     sensor_msgs::ImageConstPtr image;
     sensor_msgs::CameraInfoConstPtr info;  ///< null = none with this stamp (missing camera_info)
@@ -62,6 +68,17 @@ class IngestNodelet : public nodelet::Nodelet {
         r.table<TrackerConfig>(ros::NodeHandle(nh, "tracker"), trackerParams(), TrackerConfig{},
                                [](const TrackerConfig& c) { return c.validate(nominalK()); });
     r.finish();  // throws: the manager reports the message and the nodelet does not start
+    diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh), {});
+    reconf_.bindNodeParam("ingest", "d_min", [](Runtime& s) -> double& { return s.range.min_m; });
+    reconf_.bindNodeParam("ingest", "d_max", [](Runtime& s) -> double& { return s.range.max_m; });
+    reconf_.bindTable("ingest", "tracker", trackerParams(),
+                      [](Runtime& s) -> TrackerConfig& { return s.tracker; });
+    reconf_.start(pnh, "ingest", {config_, range_}, {TrackerConfig{}, DepthRange{}},
+                  [](const Runtime& s) {
+                    auto p = s.range.validate();
+                    for (const auto& q : s.tracker.validate(nominalK())) p.push_back(q);
+                    return p;
+                  });
     pool_ = std::make_shared<WorkerPool>(threads);
     ctx_ = graphContext(nh.getNamespace());
 
@@ -91,6 +108,7 @@ class IngestNodelet : public nodelet::Nodelet {
 
   void onImage(const sensor_msgs::ImageConstPtr& image) {
     watchdog_.kick();
+    diag_.input();
     std::lock_guard<std::mutex> lock(pair_mutex_);
     if (auto p = pairs_.addA(image->header.stamp, image)) paired(*p);
     // An image that waited through 10 newer ones without its camera_info never gets one.
@@ -118,7 +136,18 @@ class IngestNodelet : public nodelet::Nodelet {
   }
 
   void process(const Frame& f) {
+    const auto t0 = std::chrono::steady_clock::now();
+    processFrame(f);
+    diag_.processed(msSince(t0));
+    diag_.counts(queue_->skipped(), rejected_);
+  }
+  void processFrame(const Frame& f) {
     ctx_->skipped_ingest = queue_->skipped();
+    if (auto s = reconf_.takePending()) {  // between frames: the prefilter is rebuilt below
+      config_ = s->tracker;
+      range_ = s->range;
+      prefilter_.reset();
+    }
     if (!f.image || !f.info) {
       std_msgs::Header h;
       if (f.image)
@@ -189,6 +218,8 @@ class IngestNodelet : public nodelet::Nodelet {
   image_transport::Publisher colour_pub_;
   ros::Publisher status_pub_;
   InputWatchdog watchdog_;
+  StageDiagnostics diag_;
+  RuntimeParams<Runtime> reconf_;
   std::unique_ptr<FrameQueue<Frame>> queue_;
 };
 

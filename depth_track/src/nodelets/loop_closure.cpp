@@ -19,6 +19,8 @@
 #include "depth_track/ros/conversions.hpp"
 #include "depth_track/ros/params.hpp"
 #include "graph_common.hpp"
+#include "graph_diagnostics.hpp"
+#include "graph_reconfigure.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -43,6 +45,17 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
+    diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh),
+                {config_.loop.enabled, config_.loop.enabled, config_.loop.enabled, false});
+    diag_.add("loop closure",
+              [this](diagnostic_updater::DiagnosticStatusWrapper& d) { loopTask(d); });
+    if (config_.loop.enabled) {  // with loop closure off there is nothing to reconfigure
+      reconf_.bindTable("loop_closure", "mapper", mapperParams(),
+                        [](MapperConfig& c) -> MapperConfig& { return c; });
+      reconf_.start(pnh, "loop_closure", config_, MapperConfig{}, [](const MapperConfig& c) {
+        return c.validate(PinholeIntrinsics{640, 480, 500, 500, 319.5, 239.5});
+      });
+    }
     if (config_.loop.enabled) ctx_->map.attachLoopClosure();
     status_pub_ = nh.advertise<rig_msgs::LoopClosureStatus>("loop_closure/status", 20);
     image_transport::ImageTransport it(nh);
@@ -65,14 +78,54 @@ class LoopClosureNodelet : public nodelet::Nodelet {
                  odom_frame_.c_str(), tf_rate);
   }
 
+  /// Attempts, the last gate decision and its reason, the correction map -> odom; WARN after
+  /// diagnostics/loop_reject_warn rejected attempts in a row (drift goes uncorrected).
+  void loopTask(diagnostic_updater::DiagnosticStatusWrapper& d) {
+    const Eigen::Isometry3d X = ctx_->map.latestCorrection();
+    std::lock_guard<std::mutex> lock(diag_mutex_);
+    if (!config_.loop.enabled)
+      d.summary(diagnostic_msgs::DiagnosticStatus::OK, "off (map -> odom stays identity)");
+    else if (attempts_ == 0)
+      d.summary(diagnostic_msgs::DiagnosticStatus::OK, "no attempt yet");
+    else if (rejected_in_a_row_ >= diag_.thresholds().loop_reject_warn)
+      d.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%d attempts in a row rejected: %s",
+                 rejected_in_a_row_, last_reason_.c_str());
+    else
+      d.summary(diagnostic_msgs::DiagnosticStatus::OK,
+                (last_accepted_ ? "accepted: " : "rejected: ") + last_reason_);
+    d.add("every n frames", config_.loop.cl_step);
+    d.add("attempts", attempts_);
+    d.add("accepted", accepted_);
+    d.add("rejected in a row", rejected_in_a_row_);
+    d.add("last reason", last_reason_);
+    d.addf("last correction (mm)", "%.2f", last_correction_m_ * 1e3);
+    d.addf("last correction (deg)", "%.3f", last_correction_deg_);
+    d.addf("map -> odom (mm)", "%.2f", X.translation().norm() * 1e3);
+    d.addf("map -> odom (deg)", "%.3f", Eigen::AngleAxisd(X.rotation()).angle() * 180.0 / M_PI);
+  }
+
   void process(const Frame& f) {
+    diag_.input();
+    const auto t0 = std::chrono::steady_clock::now();
+    closeFrame(f);
+    diag_.processed(msSince(t0));
+    diag_.counts(input_.skipped(), 0);
+  }
+
+  void closeFrame(const Frame& f) {
+    if (auto c = reconf_.takePending()) {  // between frames
+      std::lock_guard<std::mutex> lock(diag_mutex_);
+      config_ = *c;
+    }
     const double stamp = f.image->header.stamp.toSec();
     if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset
     Eigen::Isometry3d X = ctx_->map.latestCorrection();
     try {
       if (stamp < last_stamp_) {  // time jumped back: the graph was reset
         frames_ = 0;
+        std::lock_guard<std::mutex> lock(diag_mutex_);
         attempts_ = accepted_ = 0;
+        rejected_in_a_row_ = 0;
       }
       const double prev = last_stamp_;
       last_stamp_ = stamp;
@@ -92,10 +145,18 @@ class LoopClosureNodelet : public nodelet::Nodelet {
           return out;
         });
         if (res) {
-          ++attempts_;
-          if (res->accepted) {
-            ++accepted_;
-            X = res->T_W_C * T_odom_C.inverse();
+          {
+            std::lock_guard<std::mutex> lock(diag_mutex_);
+            ++attempts_;
+            if (res->accepted) {
+              ++accepted_;
+              X = res->T_W_C * T_odom_C.inverse();
+            }
+            rejected_in_a_row_ = res->accepted ? 0 : rejected_in_a_row_ + 1;
+            last_accepted_ = res->accepted;
+            last_reason_ = res->reason;
+            last_correction_m_ = res->correction_m;
+            last_correction_deg_ = res->correction_deg;
           }
           publishStatus(f, *res);
           if (virtual_pub_.getNumSubscribers() > 0) {
@@ -144,7 +205,14 @@ class LoopClosureNodelet : public nodelet::Nodelet {
   std::shared_ptr<GraphContext> ctx_;
   double last_stamp_ = -1.0;
   std::uint64_t frames_ = 0;
+  std::mutex diag_mutex_;  // the attempt counters and the last decision, read by loopTask
   std::uint32_t attempts_ = 0, accepted_ = 0;
+  int rejected_in_a_row_ = 0;
+  bool last_accepted_ = false;
+  std::string last_reason_;
+  double last_correction_m_ = 0.0, last_correction_deg_ = 0.0;
+  StageDiagnostics diag_;
+  RuntimeParams<MapperConfig> reconf_;
   ros::Publisher status_pub_;
   image_transport::Publisher virtual_pub_;
   tf2_ros::TransformBroadcaster tf_pub_;

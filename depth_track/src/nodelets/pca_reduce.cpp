@@ -16,6 +16,7 @@
 #include "depth_track/ros/conversions.hpp"
 #include "depth_track/ros/params.hpp"
 #include "graph_common.hpp"
+#include "graph_diagnostics.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -37,12 +38,14 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     rosparams::ParamReader r(getPrivateNodeHandle(), "pca_reduce");
     const Mode mode = parseMode(r.getString("mode"));
     const int threads = r.getInt("threads");
+    fm_terms_ = r.getBool("fm_terms");
     config_ = r.table<TrackerConfig>(
         ros::NodeHandle(nh, "tracker"), trackerParams(), TrackerConfig{},
         [](const TrackerConfig& c) {
           return c.validate(PinholeIntrinsics{640, 480, 500, 500, 319.5, 239.5});
         });
     r.finish();
+    diag_.start(nh, getPrivateNodeHandle(), getName(), readDiagnosticThresholds(nh), {});
     pool_ = std::make_shared<WorkerPool>(threads);
     ctx_ = graphContext(nh.getNamespace());
     cells_pub_ = nh.advertise<sensor_msgs::PointCloud2>("cells", 5);
@@ -57,6 +60,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
 
   void onFrame(const sensor_msgs::ImageConstPtr& image,
                const sensor_msgs::CameraInfoConstPtr& info) {
+    diag_.input();
     queue_->push({image, info});
   }
 
@@ -67,7 +71,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
       const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
       if (!reducer_ || K.width != K_.width || K.height != K_.height || K.fx != K_.fx ||
           K.fy != K_.fy || K.cx != K_.cx || K.cy != K_.cy) {
-        reducer_ = std::make_unique<CellReducer>(K, config_.reducerConfig(), pool_);
+        reducer_ = std::make_unique<CellReducer>(K, reducerConfig(), pool_);
         K_ = K;
       }
       const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
@@ -77,6 +81,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
       const double ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       ctx_->times.setReduce(h.stamp.toSec(), ms);
+      diag_.processed(ms);
       cells_pub_.publish(conv::cellsToCloud(*cells, h));
       rig_msgs::ReductionStats s;
       s.header = h;
@@ -96,7 +101,9 @@ class PcaReduceNodelet : public nodelet::Nodelet {
                              e.what());
       rig_msgs::TrackingStatus s = rejectedStatus(h, std::string("pca_reduce: ") + e.what());
       status_pub_.publish(s);
+      ++rejected_;
     }
+    diag_.counts(queue_->skipped(), rejected_);
   }
 
   /// Each cell's normal as a 3 cm line from its mean vertex (rviz cannot draw them from a cloud).
@@ -120,13 +127,24 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     normals_pub_.publish(m);
   }
 
+  /// The reduction: the FM metric's terms also when the method does not need them (~fm_terms),
+  /// so that the registration can be switched to cell_search at runtime.
+  PcaConfig reducerConfig() const {
+    PcaConfig p = config_.reducerConfig();
+    p.compute_inv_sqrt = p.compute_inv_sqrt || fm_terms_;
+    return p;
+  }
+
   TrackerConfig config_;
+  bool fm_terms_ = false;
   std::shared_ptr<WorkerPool> pool_;
   std::shared_ptr<GraphContext> ctx_;
   std::unique_ptr<CellReducer> reducer_;
   PinholeIntrinsics K_;
   image_transport::CameraSubscriber sub_;
   ros::Publisher cells_pub_, stats_pub_, status_pub_, normals_pub_;
+  std::uint64_t rejected_ = 0;
+  StageDiagnostics diag_;
   std::unique_ptr<FrameQueue<Frame>> queue_;
 };
 

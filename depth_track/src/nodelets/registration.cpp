@@ -34,6 +34,8 @@
 #include "depth_track/ros/conversions.hpp"
 #include "depth_track/ros/params.hpp"
 #include "graph_common.hpp"
+#include "graph_diagnostics.hpp"
+#include "graph_reconfigure.hpp"
 
 namespace depth_track {
 namespace graph {
@@ -93,6 +95,22 @@ class RegistrationNodelet : public nodelet::Nodelet {
     mapper_config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
+    diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh), {true, true, true, true});
+    method_name_ = toString(config_.registration.method);
+    fm_from_start_ = config_.registration.method == RegistrationMethod::kCellSearch;
+    diag_.add("tracking state",
+              [this](diagnostic_updater::DiagnosticStatusWrapper& d) { stateTask(d); });
+    reconf_.bindTable("registration", "tracker", trackerParams(),
+                      [](TrackerConfig& c) -> TrackerConfig& { return c; });
+    reconf_.start(pnh, "registration", config_, TrackerConfig{}, [this](const TrackerConfig& c) {
+      auto p = c.validate(PinholeIntrinsics{640, 480, 500, 500, 319.5, 239.5});
+      if (c.registration.method == RegistrationMethod::kCellSearch && !fm_from_start_ &&
+          !cells_have_fm_)
+        p.push_back(
+            "cell_search needs the cells' FM (Foerstner-Moonen) terms, which pca_reduce does not "
+            "compute now (start the graph with method:=cell_search, or pca_reduce/fm_terms true)");
+      return p;
+    });
 
     if (mount) {  // the launch file's mount, for everyone on /tf_static
       geometry_msgs::TransformStamped t;
@@ -127,7 +145,36 @@ class RegistrationNodelet : public nodelet::Nodelet {
     std::lock_guard<std::mutex> lock(info_mutex_);
     info_ = info;
   }
-  void onCells(const sensor_msgs::PointCloud2ConstPtr& m) { queue_->push(m); }
+  void onCells(const sensor_msgs::PointCloud2ConstPtr& m) {
+    diag_.input();
+    queue_->push(m);
+  }
+
+  /// TRACKING is OK, RELOCALISING a warning, LOST (or nothing tracked yet) an error.
+  void stateTask(diagnostic_updater::DiagnosticStatusWrapper& d) {
+    std::lock_guard<std::mutex> lock(last_mutex_);
+    d.add("method", method_name_);
+    if (!last_) {
+      d.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no frame yet");
+      return;
+    }
+    const rig_msgs::TrackingStatus& s = *last_;
+    const std::uint8_t level = s.state == rig_msgs::TrackingStatus::TRACKING && !s.input_rejected
+                                   ? diagnostic_msgs::DiagnosticStatus::OK
+                               : s.state == rig_msgs::TrackingStatus::RELOCALISING
+                                   ? diagnostic_msgs::DiagnosticStatus::WARN
+                                   : diagnostic_msgs::DiagnosticStatus::ERROR;
+    d.summary(level, s.state_name + (s.failure.empty() ? "" : ": " + s.failure));
+    d.add("state", s.state_name);
+    d.add("frame", s.frame);
+    d.addf("stamp (s)", "%.3f", s.header.stamp.toSec());
+    d.add("cells", s.cells);
+    d.add("matches", s.matches);
+    d.add("fm_matches", s.fm_matches);
+    d.add("iterations", s.iterations);
+    d.addf("icp error (mm)", "%.3f", s.error_rms_m * 1e3);
+    d.add("frames lost in a row", lost_frames_in_a_row_);
+  }
 
   // ---- per frame ---------------------------------------------------------------------------
 
@@ -136,6 +183,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.header.stamp = h.stamp;
     s.header.frame_id = odom_frame_;
     s.camera_frame = h.frame_id;
+    s.method = toString(config_.registration.method);
     s.frame = frames_;
     s.epoch = epoch_;
     s.camera_pose.orientation.w = 1.0;
@@ -145,6 +193,14 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.frames_rejected = rejected_;
     s.frames_dropped = ctx_->skipped_ingest + ctx_->skipped_reduce + ctx_->skipped_registration;
     status_pub_.publish(s);
+    if (!s.input_rejected) {
+      diag_.processed(s.ms_register);
+      diag_.latency(s.latency_ms);
+    }
+    diag_.counts(queue_->skipped(), rejected_);
+    std::lock_guard<std::mutex> lock(last_mutex_);
+    last_ = s;
+    lost_frames_in_a_row_ = lost_frames_;
   }
   void reject(const std_msgs::Header& h, const std::string& why) {
     ++rejected_;
@@ -152,6 +208,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
                            why.c_str());
     rig_msgs::TrackingStatus s = rejectedStatus(h, "registration: " + why);
     s.header.frame_id = odom_frame_;
+    s.method = toString(config_.registration.method);
     s.frame = frames_;
     s.epoch = epoch_;
     if (odometry_) {
@@ -215,6 +272,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     const std_msgs::Header& h = m->header;
     std::lock_guard<std::mutex> lock(state_mutex_);
     try {
+      if (auto c = reconf_.takePending()) applyConfig(*c);  // between frames, never within one
       switch (guard_.check(h.stamp)) {
         case StampGuard::Verdict::kReject:
           reject(h, "stamp " + std::to_string(h.stamp.toSec()) + " s does not increase (last " +
@@ -248,6 +306,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
         return;
       }
       const std::shared_ptr<const CellCloud> cells = conv::cellsFromCloud(*m, K.width, K.height);
+      cells_have_fm_ = !cells->cells.empty() && !cells->cells.front().cov_inv_sqrt.isZero();
       if (!odometry_ || K.width != K_.width || K.height != K_.height) {
         K_ = K;
         odometry_ = std::make_unique<CellOdometry>(K, config_.odometryConfig(), T_base_C_);
@@ -278,6 +337,16 @@ class RegistrationNodelet : public nodelet::Nodelet {
     } catch (const std::exception& e) {
       reject(h, e.what());
     }
+  }
+
+  /// A reconfigured tracker table: the odometry keeps pose, velocity and keyframe.
+  void applyConfig(const TrackerConfig& c) {
+    if (odometry_) odometry_->setConfig(c.odometryConfig());
+    if (relocaliser_ && c.registration.method != config_.registration.method)
+      relocaliser_ = std::make_unique<CellReducer>(K_, c.reducerConfig());
+    config_ = c;
+    std::lock_guard<std::mutex> lock(last_mutex_);
+    method_name_ = toString(c.registration.method);
   }
 
   /// Registers the lost frame onto the map ray-cast at the held pose (wider search).
@@ -509,6 +578,14 @@ class RegistrationNodelet : public nodelet::Nodelet {
   ros::Subscriber info_sub_, cells_sub_;
   ros::Publisher odom_pub_, path_pub_, status_pub_;
   ros::ServiceServer reset_srv_, reset_pose_srv_, save_srv_, pause_srv_, resume_srv_;
+  std::mutex last_mutex_;  // the diagnostics' view of the last frame
+  std::optional<rig_msgs::TrackingStatus> last_;
+  std::string method_name_;
+  int lost_frames_in_a_row_ = 0;
+  std::atomic<bool> cells_have_fm_{false};  ///< the last cells carry the FM terms (cell_search)
+  bool fm_from_start_ = false;  ///< started as cell_search: pca_reduce computes the FM terms
+  StageDiagnostics diag_;
+  RuntimeParams<TrackerConfig> reconf_;
   std::unique_ptr<FrameQueue<sensor_msgs::PointCloud2ConstPtr>> queue_;
 };
 

@@ -78,6 +78,11 @@ std::vector<NodeParamSpec> makeParams() {
   // ---- pca_reduce ----
   p.push_back(text("pca_reduce", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(integer("pca_reduce", "threads", "", "workers of the PCA reduction", 1, 1, 64));
+  p.push_back(flag("pca_reduce", "fm_terms",
+                   "compute the cells' Förstner–Moonen terms even when the method does not use "
+                   "them, so that dynamic_reconfigure can switch the registration to cell_search; "
+                   "off keeps the reduction identical to the offline tracker's",
+                   false));
   // ---- registration ----
   p.push_back(text("registration", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(text("registration", "odom_frame", "frame of the odometry (REP 105)", "odom"));
@@ -136,6 +141,34 @@ std::vector<NodeParamSpec> makeParams() {
   p.push_back(num("loop_closure", "wait_timeout", "s",
                   "replay: wait this long for the map to catch up before an attempt", 10.0, 0.0,
                   3600.0));
+  // ---- diagnostics: thresholds of every nodelet's /diagnostics (graph_diagnostics.hpp) ----
+  p.push_back(num("diagnostics", "period", "s", "wall time between /diagnostics updates", 1.0, 0.05,
+                  60.0));
+  p.push_back(num("diagnostics", "expected_rate", "Hz",
+                  "the camera's frame rate each stage's input rate is checked against", 30.0, 0.1,
+                  1000.0));
+  p.push_back(num("diagnostics", "rate_tolerance", "",
+                  "input rate WARN outside expected_rate * (1 +- this); ERROR: no frame in the window",
+                  0.2, 0.0, 10.0));
+  p.push_back(integer("diagnostics", "rate_window", "updates",
+                      "updates over which the input rate is measured", 5, 1, 100));
+  p.push_back(num("diagnostics", "time_warn", "ms",
+                  "processing time WARN above this mean per frame (a 30 Hz frame period: beyond "
+                  "it live mode skips frames)",
+                  33.0, 0.0, kInf));
+  p.push_back(num("diagnostics", "time_error", "ms", "processing time ERROR above this mean", 100.0,
+                  0.0, kInf));
+  p.push_back(num("diagnostics", "latency_warn", "ms",
+                  "stamp-to-publish latency WARN when the period's p95 exceeds this", 30.0, 0.0,
+                  kInf));
+  p.push_back(num("diagnostics", "latency_error", "ms",
+                  "stamp-to-publish latency ERROR when the period's median exceeds this", 100.0,
+                  0.0, kInf));
+  p.push_back(num("diagnostics", "drop_error_fraction", "",
+                  "frames dropped: WARN on any in a period, ERROR above this share of its input",
+                  0.5, 0.0, 1.0));
+  p.push_back(integer("diagnostics", "loop_reject_warn", "attempts",
+                      "loop closure WARN after this many rejected attempts in a row", 10, 1, 100000));
   return p;
 }
 
@@ -143,6 +176,58 @@ std::vector<NodeParamSpec> makeParams() {
 
 const std::vector<NodeParamSpec>& nodeParams() {
   static const std::vector<NodeParamSpec> params = makeParams();
+  return params;
+}
+
+namespace {
+
+ReconfigurableSpec rc(const char* node, const char* table, const char* name, char type, double lo,
+                      double hi, std::vector<std::string> choices = {}) {
+  ReconfigurableSpec r;
+  r.node = node, r.table = table, r.name = name, r.type = type, r.min = lo, r.max = hi;
+  r.choices = std::move(choices);
+  return r;
+}
+
+std::vector<ReconfigurableSpec> makeReconfigurable() {
+  std::vector<ReconfigurableSpec> r;
+  // Ingest: the depth range and the prefilter (rebuilt between two frames).
+  r.push_back(rc("ingest", "", "d_min", 'd', 0, 0));
+  r.push_back(rc("ingest", "", "d_max", 'd', 0, 0));
+  // On / off: a crop needs its window, which is not reconfigurable.
+  r.push_back(rc("ingest", "tracker", "prefilter", 's', 0, 0, {"none", "bilateral"}));
+  // Registration: the method, the pairing and failure gates, the iterations, the FM gate.
+  r.push_back(rc("registration", "tracker", "method", 's', 0, 0, {"p2p", "p2l", "cell_search"}));
+  r.push_back(rc("registration", "tracker", "fm_thresh", 'd', 0.01, 1000.0));
+  r.push_back(rc("registration", "tracker", "max_iterations", 'i', 1, 1000));
+  r.push_back(rc("registration", "tracker", "dist_min", 'd', 0.001, 1.0));
+  r.push_back(rc("registration", "tracker", "initial_dist", 'd', 0.0, 2.0));
+  r.push_back(rc("registration", "tracker", "cos_min", 'd', -0.99, 1.0));
+  r.push_back(rc("registration", "tracker", "search_radius", 'i', 0, 16));
+  r.push_back(rc("registration", "tracker", "min_matches", 'i', 6, 100000));
+  r.push_back(rc("registration", "tracker", "max_error", 'd', 0.0001, 1.0));
+  r.push_back(rc("registration", "tracker", "max_jump", 'd', 0.001, 5.0));
+  r.push_back(rc("registration", "tracker", "max_jump_angle", 'd', 0.01, 180.0));
+  // Loop closure: how often, and its gates.
+  r.push_back(rc("loop_closure", "mapper", "cl_step", 'i', 1, 1000));
+  r.push_back(rc("loop_closure", "mapper", "cl_min_model_fraction", 'd', 0.0, 1.0));
+  r.push_back(rc("loop_closure", "mapper", "cl_min_matches", 'i', 1, 100000));
+  r.push_back(rc("loop_closure", "mapper", "cl_max_correction", 'd', 0.0001, 5.0));
+  r.push_back(rc("loop_closure", "mapper", "cl_max_correction_angle", 'd', 0.001, 180.0));
+  r.push_back(rc("loop_closure", "mapper", "cl_max_error", 'd', 0.0001, 1.0));
+  r.push_back(rc("loop_closure", "mapper", "cl_deadband", 'd', 0.0, 1.0));
+  r.push_back(rc("loop_closure", "mapper", "cl_deadband_angle", 'd', 0.0, 45.0));
+  for (auto& x : r)
+    if (x.table.empty())
+      for (const auto& p : nodeParams())
+        if (p.node == x.node && p.name == x.name) x.type = p.type, x.min = p.min, x.max = p.max;
+  return r;
+}
+
+}  // namespace
+
+const std::vector<ReconfigurableSpec>& reconfigurableParams() {
+  static const std::vector<ReconfigurableSpec> params = makeReconfigurable();
   return params;
 }
 

@@ -369,3 +369,75 @@ TEST(TrackingYaml, NodeletParametersDocumentedAtTheirDefaults) {
   for (const auto& kv : root)
     EXPECT_TRUE(sections.count(kv.first.as<std::string>())) << kv.first.as<std::string>();
 }
+
+namespace {
+
+/// The stage table's validate() on the defaults with one parameter set to `text`.
+template <class Config, class Validate>
+std::vector<std::string> problemsWith(const std::vector<BasicParamSpec<Config>>& table,
+                                      const std::string& name, const std::string& text,
+                                      Validate validate) {
+  Config c;
+  setParam(table, c, name, text, "test");
+  return validate(c);
+}
+
+template <class Config, class Validate>
+void expectRangeWithinValidate(const rosparams::ReconfigurableSpec& r,
+                               const std::vector<BasicParamSpec<Config>>& table,
+                               Validate validate) {
+  const BasicParamSpec<Config>* row = nullptr;
+  for (const auto& p : table) row = p.name == r.name ? &p : row;
+  ASSERT_NE(row, nullptr) << r.name << " is not in the " << r.table << " table";
+  const std::string dflt = row->get(Config{});
+  if (r.type == 's') {
+    EXPECT_NE(std::find(r.choices.begin(), r.choices.end(), dflt), r.choices.end())
+        << r.name << ": default " << dflt << " is not among the choices";
+    for (const auto& c : r.choices)
+      EXPECT_TRUE(problemsWith(table, r.name, c, validate).empty()) << r.name << " = " << c;
+    EXPECT_THROW(problemsWith(table, r.name, "no_such_choice", validate), std::invalid_argument)
+        << r.name;
+    return;
+  }
+  const double d = param_text::toDouble(r.name, dflt);
+  EXPECT_GE(d, r.min) << r.name << ": default below the reconfigure range";
+  EXPECT_LE(d, r.max) << r.name << ": default above the reconfigure range";
+  // Both ends of what the server offers must pass the stage's own validate().
+  for (double v : {r.min, r.max}) {
+    const auto p = problemsWith(table, r.name, param_text::format(v), validate);
+    EXPECT_TRUE(p.empty()) << r.name << " = " << v << ": " << (p.empty() ? "" : p.front());
+  }
+  if (r.type == 'i')  // the member is an int: a fraction must not pass as one
+    EXPECT_THROW(problemsWith(table, r.name, "1.5", validate), std::invalid_argument) << r.name;
+}
+
+}  // namespace
+
+TEST(Reconfigure, RangesLieWithinTheStagesValidationAndHoldTheDefaults) {
+  const PinholeIntrinsics K{640, 480, 500, 500, 319.5, 239.5};
+  int tracker = 0, mapper = 0, node = 0;
+  for (const auto& r : rosparams::reconfigurableParams()) {
+    SCOPED_TRACE(r.node + "/" + r.name);
+    if (r.table == "tracker") {
+      ++tracker;
+      expectRangeWithinValidate(r, trackerParams(),
+                                [&K](const TrackerConfig& c) { return c.validate(K); });
+    } else if (r.table == "mapper") {
+      ++mapper;
+      expectRangeWithinValidate(r, mapperParams(),
+                                [&K](const MapperConfig& c) { return c.validate(K); });
+    } else {
+      ++node;
+      const rosparams::NodeParamSpec* spec = nullptr;
+      for (const auto& p : rosparams::nodeParams())
+        spec = p.node == r.node && p.name == r.name ? &p : spec;
+      ASSERT_NE(spec, nullptr);
+      EXPECT_EQ(spec->type, 'd') << "node parameters bind as doubles";
+      EXPECT_EQ(r.min, spec->min);
+      EXPECT_EQ(r.max, spec->max);
+    }
+  }
+  EXPECT_GE(tracker, 10);  // method, gates, iterations, FM gate, prefilter
+  EXPECT_GE(mapper, 5);    // cl_step and the loop-closure gates
+  EXPECT_EQ(node, 2);      // ingest's range limits
+}

@@ -5,6 +5,9 @@
 // save_map work and their files load; bad input gives a status naming it and no crash; a
 // covered lens ends RELOCALISING -> TRACKING near the ground truth; a bad parameter stops a
 // nodelet with the parameter's name.
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <dynamic_reconfigure/Config.h>
+#include <dynamic_reconfigure/Reconfigure.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
 #include <nav_msgs/Odometry.h>
@@ -16,6 +19,7 @@
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <rosgraph_msgs/Clock.h>
+#include <rosgraph_msgs/Log.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <std_srvs/Trigger.h>
@@ -440,6 +444,247 @@ TEST(Graph, CoveredLensEndsRelocalisingThenTracking) {
     std::printf("after the gap, frame %d: %.2f mm, %.3f deg from ground truth\n", i,
                 errs[i].pos_err_mm.norm(), errs[i].rot_err_deg.norm());
   }
+}
+
+/// Collects /diagnostics, /rosout and the registration's parameter updates while a test runs.
+class Watch {
+ public:
+  Watch() {
+    diag_sub_ = nh_.subscribe("/diagnostics", 200, &Watch::onDiag, this);
+    log_sub_ = nh_.subscribe("/rosout", 200, &Watch::onLog, this);
+    updates_sub_ = nh_.subscribe("/registration/parameter_updates", 5, &Watch::onUpdate, this);
+  }
+  struct Entry {
+    ros::WallTime at;
+    diagnostic_msgs::DiagnosticStatus status;
+  };
+  /// Waits until a status named `name` received after `after` satisfies `pred`.
+  std::optional<diagnostic_msgs::DiagnosticStatus> waitDiag(
+      const std::string& name, const ros::WallTime& after, double timeout_s,
+      const std::function<bool(const diagnostic_msgs::DiagnosticStatus&)>& pred) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    std::optional<diagnostic_msgs::DiagnosticStatus> found;
+    cv_.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] {
+      for (const auto& e : diags_)
+        if (e.at >= after && e.status.name == name && pred(e.status)) found = e.status;
+      return found.has_value();
+    });
+    return found;
+  }
+  std::vector<diagnostic_msgs::DiagnosticStatus> since(const std::string& name,
+                                                       const ros::WallTime& after) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::vector<diagnostic_msgs::DiagnosticStatus> out;
+    for (const auto& e : diags_)
+      if (e.at >= after && e.status.name == name) out.push_back(e.status);
+    return out;
+  }
+  bool waitLog(const std::string& text, double timeout_s) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    return cv_.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] {
+      for (const auto& l : logs_)
+        if (l.find(text) != std::string::npos) return true;
+      return false;
+    });
+  }
+  std::optional<dynamic_reconfigure::Config> lastUpdate() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return update_;
+  }
+
+ private:
+  void onDiag(const diagnostic_msgs::DiagnosticArrayConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& s : m->status) diags_.push_back({ros::WallTime::now(), s});
+    cv_.notify_all();
+  }
+  void onLog(const rosgraph_msgs::LogConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    logs_.push_back(m->msg);
+    cv_.notify_all();
+  }
+  void onUpdate(const dynamic_reconfigure::ConfigConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    update_ = *m;
+  }
+  ros::NodeHandle nh_;
+  ros::Subscriber diag_sub_, log_sub_, updates_sub_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::vector<Entry> diags_;
+  std::vector<std::string> logs_;
+  std::optional<dynamic_reconfigure::Config> update_;
+};
+
+std::string value(const diagnostic_msgs::DiagnosticStatus& s, const std::string& key) {
+  for (const auto& kv : s.values)
+    if (kv.key == key) return kv.value;
+  return "";
+}
+
+int runTool(const std::string& cmd, std::string* out = nullptr) {
+  // dynparam runs on `env python3`: the ROS one, not a python3 earlier on PATH.
+  FILE* p = popen(("PATH=/usr/bin:$PATH " + cmd + " 2>&1").c_str(), "r");
+  if (!p) return -1;
+  char buf[512];
+  while (std::fgets(buf, sizeof(buf), p))
+    if (out) *out += buf;
+  return pclose(p);
+}
+
+TEST(Graph, DiagnosticsFollowTrackingInputAndLoss) {
+  Watch watch;
+  // graph.test measures the rate over 2 updates (2 s): the test feeds faster than real time.
+  graph().setClock(bag().images.front()->header.stamp - ros::Duration(0.1));
+  const ros::WallTime t0 = ros::WallTime::now();
+  runGraph(kFrames, false, nullptr);
+  const ros::WallTime t1 = ros::WallTime::now();
+  std::printf("diagnostics: %d frames fed in %.1f s of wall time\n", kFrames, (t1 - t0).toSec());
+  // While frames come at the bag's 30 Hz (on its clock), the input rate is met and the state
+  // is TRACKING; the registration reports its latency and time per frame.
+  const auto rate = watch.waitDiag("registration: input rate", t0, 5.0, [&](const auto& s) {
+    return s.level == diagnostic_msgs::DiagnosticStatus::OK;
+  });
+  ASSERT_TRUE(rate) << "no OK input rate while frames came at 30 Hz";
+  const double hz = std::stod(value(*rate, "Actual frequency (Hz)"));
+  EXPECT_NEAR(hz, 30.0, 30.0 * 0.2) << "30 Hz frames within the 20 % tolerance";
+  const auto state = watch.waitDiag("registration: tracking state", t0, 5.0, [](const auto& s) {
+    return s.level == diagnostic_msgs::DiagnosticStatus::OK;
+  });
+  ASSERT_TRUE(state);
+  EXPECT_EQ(state->message.rfind("TRACKING", 0), 0u) << state->message;
+  EXPECT_EQ(value(*state, "method"), "p2l");
+  EXPECT_GT(std::stoi(value(*state, "matches")), 100);
+  const auto lat = watch.waitDiag("registration: latency", t0, 5.0, [](const auto& s) {
+    return s.values.size() >= 3;
+  });
+  ASSERT_TRUE(lat);
+  EXPECT_GE(std::stod(value(*lat, "median (ms)")), 0.0);
+  for (const char* name : {"ingest: input rate", "pca_reduce: processing time",
+                           "fusion: map", "loop_closure: loop closure", "ingest: frames dropped"})
+    EXPECT_TRUE(watch.waitDiag(name, t0, 5.0, [](const auto&) { return true; })) << name;
+  // The chair room seen for 5 s at 5 mm voxels: far more than 100k occupied voxels.
+  const auto map = watch.waitDiag("fusion: map", t0, 5.0, [](const auto& s) {
+    return std::stoul(value(s, "occupied voxels")) > 100000;
+  });
+  EXPECT_TRUE(map) << "the map status never showed the fused room";
+
+  // A covered lens: LOST is an ERROR of the tracking state, RELOCALISING (lost, and a
+  // relocalisation against the map was tried and refused) a WARN.
+  ros::Time t = bag().images.back()->header.stamp;
+  for (int i = 0; i < 10; ++i) {
+    sensor_msgs::Image img = *bag().images.back();
+    sensor_msgs::CameraInfo info = *bag().infos.back();
+    t += ros::Duration(1.0 / 30);
+    img.header.stamp = info.header.stamp = t;
+    std::fill(img.data.begin(), img.data.end(), 0);
+    ASSERT_TRUE(graph().feed(img, &info));
+  }
+  const ros::WallTime t2 = ros::WallTime::now();
+  const auto lost = watch.waitDiag("registration: tracking state", t2, 5.0, [](const auto& s) {
+    return s.level != diagnostic_msgs::DiagnosticStatus::OK;
+  });
+  ASSERT_TRUE(lost) << "a covered lens left the tracking state OK";
+  if (lost->level == diagnostic_msgs::DiagnosticStatus::ERROR)
+    EXPECT_EQ(lost->message.rfind("LOST", 0), 0u) << lost->message;
+  else
+    EXPECT_EQ(lost->message.rfind("RELOCALISING", 0), 0u) << lost->message;
+  // No input: the rate turns ERROR once a whole window (2 updates) saw no frame.
+  const auto stopped = watch.waitDiag("registration: input rate", t2, 8.0, [](const auto& s) {
+    return s.level == diagnostic_msgs::DiagnosticStatus::ERROR;
+  });
+  ASSERT_TRUE(stopped) << "input stopped but the rate stayed OK";
+  EXPECT_EQ(stopped->message, "No events recorded.");
+  std::printf("diagnostics: rate %.1f Hz while fed, '%s' when lost, '%s' when stopped\n", hz,
+              lost->message.c_str(), stopped->message.c_str());
+}
+
+TEST(Graph, ReconfigureSwitchesTheMethodBetweenFramesAndRefusesOutOfRange) {
+  Watch watch;
+  graph().setClock(bag().images.front()->header.stamp - ros::Duration(0.1));
+  const int switch_at = 60;
+  std::vector<rig_msgs::TrackingStatus> st;
+  runGraph(switch_at, false, &st);
+  ASSERT_EQ(static_cast<int>(st.size()), switch_at);
+  EXPECT_EQ(st.back().method, "p2l");
+  // dynamic_reconfigure's own client (dynparam) switches the method mid-replay, to
+  // point-to-point. Cell Search is refused: pca_reduce does not compute the FM terms here
+  // (pca_reduce/fm_terms off keeps the reduction identical to the offline tracker's).
+  std::string out;
+  runTool("rosrun dynamic_reconfigure dynparam set /registration method cell_search", &out);
+  EXPECT_TRUE(watch.waitLog("cell_search needs the cells' FM (Foerstner-Moonen) terms", 10.0))
+      << out;
+  ASSERT_EQ(runTool("rosrun dynamic_reconfigure dynparam set /registration method p2p", &out), 0)
+      << out;
+  for (int i = switch_at; i < kFrames; ++i) {
+    const auto s = graph().feed(*bag().images[i], bag().infos[i].get());
+    ASSERT_TRUE(s) << i;
+    st.push_back(*s);
+  }
+  ASSERT_EQ(static_cast<int>(st.size()), kFrames);
+  // Applied from the next frame on (the request came between frames 59 and 60), every frame.
+  for (int i = switch_at; i < kFrames; ++i) EXPECT_EQ(st[i].method, "p2p") << i;
+  // No restart: the same epoch and the frame count goes on (a reset starts both anew); the
+  // first p2p frame registered (against the p2l keyframe, kept across the switch). How well
+  // point-to-point does here is printed, not asserted: on these L515 cells its residual passes
+  // max_error within a few frames, and the status then says LOST, as it should.
+  EXPECT_EQ(st[switch_at].epoch, st[switch_at - 1].epoch);
+  EXPECT_EQ(st[switch_at].frame, st[switch_at - 1].frame + 1);
+  EXPECT_GT(st[switch_at].iterations, 0);
+  EXPECT_GT(st[switch_at].matches, 0);
+  const auto gt = groundTruth(kFrames);
+  const auto errs =
+      frameErrors(std::vector<Eigen::Isometry3d>{conv::fromPoseMsg(st[0].camera_pose),
+                                                 conv::fromPoseMsg(st[switch_at].camera_pose)},
+                  std::vector<Eigen::Isometry3d>{gt[0], gt[switch_at]});
+  int p2p_tracked = 0;
+  for (int i = switch_at; i < kFrames; ++i) p2p_tracked += st[i].tracked;
+  std::printf("reconfigure: p2l -> p2p at frame %d: first p2p frame %.1f mm / %.2f deg from ground "
+              "truth, %d of %d p2p frames tracked\n",
+              switch_at, errs[1].pos_err_mm.norm(), errs[1].rot_err_deg.norm(), p2p_tracked,
+              kFrames - switch_at);
+  const auto diag = watch.waitDiag("registration: tracking state", ros::WallTime::now(), 5.0,
+                                   [](const auto& s) { return value(s, "method") == "p2p"; });
+  EXPECT_TRUE(diag) << "the diagnostics do not show the new method";
+
+  // Out of range, an unknown choice, a value validate() refuses: nothing changes, each named.
+  out.clear();
+  runTool("rosrun dynamic_reconfigure dynparam set /registration max_iterations 5000", &out);
+  EXPECT_TRUE(watch.waitLog("max_iterations = 5000: must lie in [1, 1000]", 10.0)) << out;
+  runTool("rosrun dynamic_reconfigure dynparam set /registration method icp", &out);
+  EXPECT_TRUE(watch.waitLog("method = icp: must be p2p | p2l | cell_search", 10.0)) << out;
+  dynamic_reconfigure::Reconfigure req;
+  dynamic_reconfigure::DoubleParameter d;
+  d.name = "dist_min", d.value = -0.1;
+  req.request.config.doubles.push_back(d);
+  ASSERT_TRUE(ros::service::call("/registration/set_parameters", req));
+  EXPECT_TRUE(watch.waitLog("dist_min = -0.1: must lie in [0.001, 1]", 10.0));
+  int iterations = -1;
+  std::string method;
+  for (const auto& p : req.response.config.ints)
+    if (p.name == "max_iterations") iterations = p.value;
+  for (const auto& p : req.response.config.strs)
+    if (p.name == "method") method = p.value;
+  EXPECT_EQ(iterations, TrackerConfig{}.registration.max_iterations) << "old value kept";
+  EXPECT_EQ(method, "p2p") << "old value kept";
+  // The next frames run on, with the accepted method.
+  sensor_msgs::Image img = *bag().images.back();
+  sensor_msgs::CameraInfo info = *bag().infos.back();
+  img.header.stamp = info.header.stamp = img.header.stamp + ros::Duration(1.0 / 30);
+  const auto s = graph().feed(img, &info);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->method, "p2p");
+  // Back to the launch file's method for the tests after this one.
+  ASSERT_EQ(runTool("rosrun dynamic_reconfigure dynparam set /registration method p2l", &out), 0)
+      << out;
+  std::string published;
+  for (int i = 0; i < 50 && published != "p2l"; ++i) {
+    if (const auto upd = watch.lastUpdate())
+      for (const auto& p : upd->strs)
+        if (p.name == "method") published = p.value;
+    ros::WallDuration(0.1).sleep();
+  }
+  EXPECT_EQ(published, "p2l") << "parameter_updates did not follow";
 }
 
 TEST(Graph, BadParameterStopsTheNodeletNamingIt) {

@@ -114,6 +114,10 @@ class CellOdometry {
   void reset(const Eigen::Isometry3d& T_W_C);
   /// reset() to the start pose given at construction.
   void reset() { reset(T_W_C0_); }
+  /// Replaces the thresholds and the method between two frames (a runtime reconfiguration),
+  /// keeping pose, velocity and keyframe; the association grid is rebuilt for a new search
+  /// window. Throws std::invalid_argument listing every problem; the old config then stays.
+  void setConfig(const CellOdometryConfig& config);
   /// Replaces the current pose (e.g. after a loop-closure correction); keeps the velocity and
   /// moves the reference frame's pose with it.
   void correctPose(const Eigen::Isometry3d& T_W_C);

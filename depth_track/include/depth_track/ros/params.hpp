@@ -37,6 +37,24 @@ struct NodeParamSpec {
 
 /// Every nodelet parameter. Thread-safe.
 const std::vector<NodeParamSpec>& nodeParams();
+
+/// A parameter that dynamic_reconfigure may change while the graph runs: a row of a stage table
+/// (`table` "tracker" | "mapper": name, unit, meaning and default come from that row) or of
+/// nodeParams() (`table` empty: its range too). The range is what the server offers and
+/// enforces before the stage's validate() sees the value; dt_test_ros_conversions checks that
+/// validate() accepts both ends and the default lies inside.
+struct ReconfigurableSpec {
+  std::string node;   ///< the nodelet that serves it
+  std::string table;  ///< "tracker" | "mapper" | "" (the nodelet's own, nodeParams())
+  std::string name;
+  char type = 'd';  ///< 'd' double, 'i' int, 'b' bool, 's' one of `choices`
+  double min = 0.0, max = 0.0;
+  std::vector<std::string> choices;
+};
+
+/// Every runtime-reconfigurable parameter (ranges of the node parameters filled from
+/// nodeParams()). Thread-safe.
+const std::vector<ReconfigurableSpec>& reconfigurableParams();
 /// The nodelet names of nodeParams(), in order of first appearance.
 std::vector<std::string> nodeNames();
 
