@@ -42,8 +42,15 @@ export DISPLAY=":$DISP" LIBGL_ALWAYS_SOFTWARE=1
 
 pids=()
 cleanup() {
+  # roslaunch starts the master and rosout in sessions of their own: it must be given the time
+  # to stop them itself before anything is killed.
   for p in "${pids[@]}"; do kill -INT -- "-$p" 2>/dev/null || true; done
-  sleep 2
+  for _ in $(seq 30); do
+    alive=0
+    for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
+    [ "$alive" = 0 ] && return
+    sleep 1
+  done
   for p in "${pids[@]}"; do kill -KILL -- "-$p" 2>/dev/null || true; done
 }
 trap cleanup EXIT
