@@ -116,8 +116,7 @@ class Graph {
     while (ros::WallTime::now() < end) {
       if (image_.getNumSubscribers() > 0 && info_.getNumSubscribers() > 0 &&
           status_sub_.getNumPublishers() >= 1 && tf_sub_.getNumPublishers() >= 1 &&
-          ros::service::exists("/fusion/save_map", false) &&
-          advertised("/loop_closure/status")) {
+          ros::service::exists("/fusion/save_map", false) && advertised("/loop_closure/status")) {
         // Every nodelet is loaded; give their subscriptions to each other a moment to connect
         // (a mapping nodelet that missed the first frames would count frames differently).
         ros::WallDuration(1.0).sleep();
@@ -178,11 +177,23 @@ class Graph {
     });
     return found;
   }
-  int baseTfCount(const ros::Time& from, const ros::Time& to) {
-    std::lock_guard<std::mutex> lock(mutex_);
+  /// odom -> base_link transforms received with stamps in [from, to], waiting up to timeout_s
+  /// for `expected` of them: /tf and /status are separate connections, so a frame's tf (sent
+  /// first) may still arrive after its status.
+  int baseTfCount(const ros::Time& from, const ros::Time& to, int expected = 0,
+                  double timeout_s = 0.0) {
+    std::unique_lock<std::mutex> lock(mutex_);
     int n = 0;
-    for (const auto& t : base_tf_stamps_) n += t >= from && t <= to;
+    cv_.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] {
+      n = 0;
+      for (const auto& t : base_tf_stamps_) n += t >= from && t <= to;
+      return n >= expected;
+    });
     return n;
+  }
+  bool hasBaseTf(const ros::Time& stamp) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return base_tf_stamps_.count(stamp) > 0;
   }
   void publishStatic(const tf2_msgs::TFMessage& m) { tf_static_.publish(m); }
 
@@ -197,6 +208,7 @@ class Graph {
     for (const auto& t : m->transforms)
       if (t.header.frame_id == "odom" && t.child_frame_id == "base_link")
         base_tf_stamps_.insert(t.header.stamp);
+    cv_.notify_all();
   }
   ros::NodeHandle nh_;
   ros::Publisher clock_, image_, info_, tf_static_;
@@ -255,9 +267,11 @@ TEST(Graph, TracksEveryFrameLikeTheOfflineTracker) {
   for (const auto& s : st)
     EXPECT_EQ(s.state_name, "TRACKING") << s.header.stamp << " " << s.failure;
   // tf odom -> base_link for every frame (it goes out before the status).
-  EXPECT_EQ(
-      graph().baseTfCount(bag().images.front()->header.stamp, bag().images.back()->header.stamp),
-      kFrames);
+  EXPECT_EQ(graph().baseTfCount(bag().images.front()->header.stamp,
+                                bag().images.back()->header.stamp, kFrames, 5.0),
+            kFrames);
+  for (int i = 0; i < kFrames; ++i)
+    EXPECT_TRUE(graph().hasBaseTf(bag().images[i]->header.stamp)) << "no tf for frame " << i;
 
   // The same frames through the core's Tracker, as track_sequence runs it.
   const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*bag().infos[0]);
@@ -555,13 +569,12 @@ TEST(Graph, DiagnosticsFollowTrackingInputAndLoss) {
   EXPECT_EQ(state->message.rfind("TRACKING", 0), 0u) << state->message;
   EXPECT_EQ(value(*state, "method"), "p2l");
   EXPECT_GT(std::stoi(value(*state, "matches")), 100);
-  const auto lat = watch.waitDiag("registration: latency", t0, 5.0, [](const auto& s) {
-    return s.values.size() >= 3;
-  });
+  const auto lat = watch.waitDiag("registration: latency", t0, 5.0,
+                                  [](const auto& s) { return s.values.size() >= 3; });
   ASSERT_TRUE(lat);
   EXPECT_GE(std::stod(value(*lat, "median (ms)")), 0.0);
-  for (const char* name : {"ingest: input rate", "pca_reduce: processing time",
-                           "fusion: map", "loop_closure: loop closure", "ingest: frames dropped"})
+  for (const char* name : {"ingest: input rate", "pca_reduce: processing time", "fusion: map",
+                           "loop_closure: loop closure", "ingest: frames dropped"})
     EXPECT_TRUE(watch.waitDiag(name, t0, 5.0, [](const auto&) { return true; })) << name;
   // The chair room seen for 5 s at 5 mm voxels: far more than 100k occupied voxels.
   const auto map = watch.waitDiag("fusion: map", t0, 5.0, [](const auto& s) {
@@ -639,10 +652,11 @@ TEST(Graph, ReconfigureSwitchesTheMethodBetweenFramesAndRefusesOutOfRange) {
                   std::vector<Eigen::Isometry3d>{gt[0], gt[switch_at]});
   int p2p_tracked = 0;
   for (int i = switch_at; i < kFrames; ++i) p2p_tracked += st[i].tracked;
-  std::printf("reconfigure: p2l -> p2p at frame %d: first p2p frame %.1f mm / %.2f deg from ground "
-              "truth, %d of %d p2p frames tracked\n",
-              switch_at, errs[1].pos_err_mm.norm(), errs[1].rot_err_deg.norm(), p2p_tracked,
-              kFrames - switch_at);
+  std::printf(
+      "reconfigure: p2l -> p2p at frame %d: first p2p frame %.1f mm / %.2f deg from ground "
+      "truth, %d of %d p2p frames tracked\n",
+      switch_at, errs[1].pos_err_mm.norm(), errs[1].rot_err_deg.norm(), p2p_tracked,
+      kFrames - switch_at);
   const auto diag = watch.waitDiag("registration: tracking state", ros::WallTime::now(), 5.0,
                                    [](const auto& s) { return value(s, "method") == "p2p"; });
   EXPECT_TRUE(diag) << "the diagnostics do not show the new method";
