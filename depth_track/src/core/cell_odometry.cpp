@@ -70,7 +70,8 @@ void CellOdometry::setConfig(const CellOdometryConfig& config) {
   const bool regrid = config.registration.match.search_radius_cells !=
                       config_.registration.match.search_radius_cells;
   config_ = config;
-  if (regrid && reference_) grid_.build(*reference_, config_.registration.match.search_radius_cells);
+  if (regrid && reference_)
+    grid_.build(*reference_, config_.registration.match.search_radius_cells);
 }
 
 void CellOdometry::setReference(std::shared_ptr<const CellCloud> cells) {

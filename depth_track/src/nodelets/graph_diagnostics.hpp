@@ -93,17 +93,14 @@ class StageDiagnostics {
       updater_->add(*rate_);
     }
     if (o.time)
-      updater_->add("processing time", [this](diagnostic_updater::DiagnosticStatusWrapper& s) {
-        timeTask(s);
-      });
+      updater_->add("processing time",
+                    [this](diagnostic_updater::DiagnosticStatusWrapper& s) { timeTask(s); });
     if (o.drops)
-      updater_->add("frames dropped", [this](diagnostic_updater::DiagnosticStatusWrapper& s) {
-        dropTask(s);
-      });
+      updater_->add("frames dropped",
+                    [this](diagnostic_updater::DiagnosticStatusWrapper& s) { dropTask(s); });
     if (o.latency)
-      updater_->add("latency", [this](diagnostic_updater::DiagnosticStatusWrapper& s) {
-        latencyTask(s);
-      });
+      updater_->add("latency",
+                    [this](diagnostic_updater::DiagnosticStatusWrapper& s) { latencyTask(s); });
     timer_ = nh.createWallTimer(ros::WallDuration(t.period_s),
                                 [this](const ros::WallTimerEvent&) { updater_->force_update(); });
   }
@@ -138,12 +135,16 @@ class StageDiagnostics {
   const DiagnosticThresholds& thresholds() const { return t_; }
 
  private:
-  void timeTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
+  /// The period's samples, leaving `samples` empty for the next period.
+  std::vector<double> take(std::vector<double>& samples) {
     std::vector<double> v;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      v.swap(times_ms_);
-    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    v.swap(samples);
+    return v;
+  }
+
+  void timeTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
+    std::vector<double> v = take(times_ms_);
     if (v.empty()) {
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "no frame processed in the last period");
       return;
@@ -177,8 +178,7 @@ class StageDiagnostics {
     if (dropped > t_.drop_error_fraction * std::max<std::uint64_t>(inputs, 1))
       s.summaryf(diagnostic_msgs::DiagnosticStatus::ERROR,
                  "%llu of %llu frames dropped in the last period (processing too slow)",
-                 static_cast<unsigned long long>(dropped),
-                 static_cast<unsigned long long>(inputs));
+                 static_cast<unsigned long long>(dropped), static_cast<unsigned long long>(inputs));
     else if (dropped > 0)
       s.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%llu frames dropped in the last period",
                  static_cast<unsigned long long>(dropped));
@@ -195,11 +195,7 @@ class StageDiagnostics {
   }
 
   void latencyTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
-    std::vector<double> v;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      v.swap(latencies_ms_);
-    }
+    std::vector<double> v = take(latencies_ms_);
     if (v.empty()) {
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "no frame published in the last period");
       return;
@@ -212,8 +208,7 @@ class StageDiagnostics {
       s.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "p95 %.1f ms (> %.0f ms)", p95,
                  t_.latency_warn_ms);
     else
-      s.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "median %.1f ms, p95 %.1f ms", median,
-                 p95);
+      s.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "median %.1f ms, p95 %.1f ms", median, p95);
     s.add("frames", v.size());
     s.addf("median (ms)", "%.2f", median);
     s.addf("p95 (ms)", "%.2f", p95);

@@ -47,9 +47,10 @@ class RuntimeParams {
       for (const auto& p : table)
         if (p.name == r.name) row = &p;
       if (!row) throw std::logic_error("reconfigurable " + r.name + " is not in " + table_name);
-      entries_.push_back({r, describe(row->unit, row->help),
-                          [row, part](const State& s) { return row->get(part(const_cast<State&>(s))); },
-                          [row, part](State& s, const std::string& v) { row->set(part(s), v); }});
+      entries_.push_back(
+          {r, describe(row->unit, row->help),
+           [row, part](const State& s) { return row->get(part(const_cast<State&>(s))); },
+           [row, part](State& s, const std::string& v) { row->set(part(s), v); }});
     }
   }
   /// Binds a nodelet's own reconfigurable parameter (a double of nodeParams()) to `member`.
@@ -59,14 +60,13 @@ class RuntimeParams {
       if (r.node == node && r.table.empty() && r.name == name)
         for (const auto& p : rosparams::nodeParams())
           if (p.node == node && p.name == name)
-            entries_.push_back(
-                {r, describe(p.unit, p.help),
-                 [member](const State& s) {
-                   return param_text::format(member(const_cast<State&>(s)));
-                 },
-                 [member, name](State& s, const std::string& v) {
-                   member(s) = param_text::toDouble(name, v);
-                 }});
+            entries_.push_back({r, describe(p.unit, p.help),
+                                [member](const State& s) {
+                                  return param_text::format(member(const_cast<State&>(s)));
+                                },
+                                [member, name](State& s, const std::string& v) {
+                                  member(s) = param_text::toDouble(name, v);
+                                }});
   }
 
   /// Advertises the server under `pnh` with `state` as the current values (their defaults are
@@ -76,8 +76,8 @@ class RuntimeParams {
     who_ = who;
     current_ = state;
     validate_ = std::move(validate);
-    descr_pub_ = pnh.advertise<dynamic_reconfigure::ConfigDescription>("parameter_descriptions",
-                                                                       1, true);
+    descr_pub_ =
+        pnh.advertise<dynamic_reconfigure::ConfigDescription>("parameter_descriptions", 1, true);
     update_pub_ = pnh.advertise<dynamic_reconfigure::Config>("parameter_updates", 1, true);
     descr_pub_.publish(description(defaults));
     update_pub_.publish(toConfig(current_));
@@ -143,9 +143,10 @@ class RuntimeParams {
         std::ostringstream m;
         m << "{'enum': [";
         for (std::size_t i = 0; i < e.spec.choices.size(); ++i)
-          m << (i ? ", " : "") << "{'name': '" << e.spec.choices[i] << "', 'type': 'str', 'value': '"
-            << e.spec.choices[i] << "', 'srcline': 0, 'srcfile': '', 'description': '"
-            << e.spec.choices[i] << "', 'ctype': 'std::string', 'cconsttype': 'const char * const'}";
+          m << (i ? ", " : "") << "{'name': '" << e.spec.choices[i]
+            << "', 'type': 'str', 'value': '" << e.spec.choices[i]
+            << "', 'srcline': 0, 'srcfile': '', 'description': '" << e.spec.choices[i]
+            << "', 'ctype': 'std::string', 'cconsttype': 'const char * const'}";
         m << "], 'enum_description': 'one of the choices'}";
         p.edit_method = m.str();
       }

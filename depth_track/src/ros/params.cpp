@@ -142,14 +142,15 @@ std::vector<NodeParamSpec> makeParams() {
                   "replay: wait this long for the map to catch up before an attempt", 10.0, 0.0,
                   3600.0));
   // ---- diagnostics: thresholds of every nodelet's /diagnostics (graph_diagnostics.hpp) ----
-  p.push_back(num("diagnostics", "period", "s", "wall time between /diagnostics updates", 1.0, 0.05,
-                  60.0));
+  p.push_back(
+      num("diagnostics", "period", "s", "wall time between /diagnostics updates", 1.0, 0.05, 60.0));
   p.push_back(num("diagnostics", "expected_rate", "Hz",
                   "the camera's frame rate each stage's input rate is checked against", 30.0, 0.1,
                   1000.0));
-  p.push_back(num("diagnostics", "rate_tolerance", "",
-                  "input rate WARN outside expected_rate * (1 +- this); ERROR: no frame in the window",
-                  0.2, 0.0, 10.0));
+  p.push_back(
+      num("diagnostics", "rate_tolerance", "",
+          "input rate WARN outside expected_rate * (1 +- this); ERROR: no frame in the window", 0.2,
+          0.0, 10.0));
   p.push_back(integer("diagnostics", "rate_window", "updates",
                       "updates over which the input rate is measured", 5, 1, 100));
   p.push_back(num("diagnostics", "time_warn", "ms",
@@ -168,7 +169,8 @@ std::vector<NodeParamSpec> makeParams() {
                   "frames dropped: WARN on any in a period, ERROR above this share of its input",
                   0.5, 0.0, 1.0));
   p.push_back(integer("diagnostics", "loop_reject_warn", "attempts",
-                      "loop closure WARN after this many rejected attempts in a row", 10, 1, 100000));
+                      "loop closure WARN after this many rejected attempts in a row", 10, 1,
+                      100000));
   return p;
 }
 

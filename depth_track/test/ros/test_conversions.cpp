@@ -407,8 +407,9 @@ void expectRangeWithinValidate(const rosparams::ReconfigurableSpec& r,
     const auto p = problemsWith(table, r.name, param_text::format(v), validate);
     EXPECT_TRUE(p.empty()) << r.name << " = " << v << ": " << (p.empty() ? "" : p.front());
   }
-  if (r.type == 'i')  // the member is an int: a fraction must not pass as one
+  if (r.type == 'i') {  // the member is an int: a fraction must not pass as one
     EXPECT_THROW(problemsWith(table, r.name, "1.5", validate), std::invalid_argument) << r.name;
+  }
 }
 
 }  // namespace
