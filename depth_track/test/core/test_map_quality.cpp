@@ -98,25 +98,36 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
       100 * q.precision, 100 * q.completeness, q.occupied, 100 * q_gt.precision,
       100 * q_gt.completeness, diff.jaccard, 100 * diff.a_far_fraction, 100 * diff.b_far_fraction,
       tracked.summary().c_str());
-  // Product target: 95 % precision (README). The guards sit near what is measured, noise seed 11
-  // (committed) / 1 (DT_TEST_SEED=1), 2026-12-01: precision 99.31/99.31 %, completeness
-  // 98.99/99.00 %, strict (centre within 5 mm) 75.09/75.13 %; at the true poses 99.29/99.30 % and
-  // 99.01/99.02 %; tracked vs truth map Jaccard 0.925/0.921, 0.02/0.02 % extruded and missed; one
-  // hit: precision 93.83/93.86 %, completeness 99.77/99.77 %. The seeds differ by <= 0.05 % and
-  // 0.004, so the guards leave 0.3-2 points (the extrusion 5x its measured share): a change in
-  // fusion or tracking that costs the map visibly fails here, not only one that breaks it.
+  // Product target: 95 % precision (README). The guards sit near what is measured with the noise
+  // seeds 11 (committed), 1, 2, 3, 4, 5 (DT_TEST_SEED, test_seed.hpp; seed 1 on 2026-12-01, the
+  // others 2026-12-02):
+  //   precision           99.31 99.31 99.31 99.31 99.32 99.32 %  -> guard 99.2 %
+  //   completeness        98.99 99.00 99.00 99.03 99.02 99.01 %  -> guard 98.8 %
+  //   strict (5 mm)       75.09 75.13 75.13 75.11 75.15 75.18 %  -> guard 74.5 %
+  //   true poses: prec.   99.29 99.30 99.30 99.30 99.32 99.31 %  -> guard 99.2 %
+  //               compl.  99.01 99.02 99.01 99.03 99.01 99.01 %  -> guard 98.8 %
+  //   Jaccard             0.925 0.921 0.932 0.918 0.926 0.930    -> guard 0.90
+  //   extruded / missed   0.02 / 0.02 % on every seed            -> guard 0.1 %
+  // The seeds spread by 0.01-0.09 points; each guard is 0.09-0.6 points (3-11 spreads) below the
+  // lowest seed, so a change in fusion or tracking that costs the map a few tenths of a point
+  // fails here. The Jaccard index is the noisiest (0.014: it counts single voxels at the
+  // surfaces' edges) and its guard is 1.3 spreads below the lowest; the extrusion guard is 5x its
+  // measured share. Run time stays that of one seed (64 s on an idle core): the spread is
+  // measured with the test itself, not inside it.
   EXPECT_GE(q.precision, 0.95);  // product target
-  EXPECT_GE(q.precision, 0.99);
-  EXPECT_GE(q.completeness, 0.985);
-  EXPECT_GE(q_strict.precision, 0.73);
-  EXPECT_GE(q_gt.precision, 0.99);
-  EXPECT_GE(q_gt.completeness, 0.985);
+  EXPECT_GE(q.precision, 0.992);
+  EXPECT_GE(q.completeness, 0.988);
+  EXPECT_GE(q_strict.precision, 0.745);
+  EXPECT_GE(q_gt.precision, 0.992);
+  EXPECT_GE(q_gt.completeness, 0.988);
   EXPECT_GE(diff.jaccard, 0.90);
   EXPECT_LT(diff.a_far_fraction, 0.001);
   EXPECT_LT(diff.b_far_fraction, 0.001);
-  // With the default threshold a voxel hit once by a stray return counts: measured 93.8 %. The
-  // default stays one hit because loop closure on Room3 does better with it (docs/mapping.md).
-  EXPECT_GE(q_one_hit.precision, 0.93);
+  // With the default threshold a voxel hit once by a stray return counts: precision 93.83-93.86 %,
+  // completeness 99.77-99.79 % over the same seeds (guards 0.3 points below the lowest, over 10
+  // spreads). The default stays one hit because loop closure on Room3 does better with it
+  // (docs/mapping.md).
+  EXPECT_GE(q_one_hit.precision, 0.935);
   EXPECT_GE(q_one_hit.completeness, 0.995);
   EXPECT_LT(q_one_hit.precision, q.precision);
 }
