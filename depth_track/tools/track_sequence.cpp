@@ -9,6 +9,7 @@
 #include <map>
 #include <memory>
 #include <sstream>
+#include <vector>
 
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
@@ -168,6 +169,15 @@ int main(int argc, char** argv) {
     }
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
+    // Frame i is fused at fuse_traj[fuse_pose_of[i]], the nearest stamp within 20 ms (-1: none).
+    std::vector<long> fuse_pose_of(n, -1);
+    if (!fuse_traj.empty()) {
+      std::vector<double> frame_s(n), pose_s(fuse_traj.size());
+      for (std::size_t i = 0; i < n; ++i) frame_s[i] = source->stamp(i);
+      for (std::size_t j = 0; j < fuse_traj.size(); ++j) pose_s[j] = fuse_traj[j].stamp_s;
+      for (const auto& [i, j] : associateStamps(frame_s, pose_s, 0.02))
+        fuse_pose_of[i] = static_cast<long>(j);
+    }
     Trajectory est, gt;
     RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
@@ -178,17 +188,13 @@ int main(int argc, char** argv) {
         DepthImage depth = source->frame(i);
         applyDepthCorrection(depth, correction);
         if (!fuse_traj.empty()) {  // known poses (thesis ImageTest=2): nearest stamp within 20 ms
-          const double t = source->stamp(i);
-          const auto it = std::min_element(
-              fuse_traj.begin(), fuse_traj.end(), [t](const StampedPose& a, const StampedPose& b) {
-                return std::abs(a.stamp_s - t) < std::abs(b.stamp_s - t);
-              });
-          if (std::abs(it->stamp_s - t) > 0.02)
+          if (fuse_pose_of[i] < 0)
             throw std::invalid_argument("no pose in --fuse-poses within 20 ms of this frame");
-          mapper->fuse(depth, it->T_W_C);
-          st.stamp_s = t;
+          const StampedPose& known = fuse_traj[static_cast<std::size_t>(fuse_pose_of[i])];
+          mapper->fuse(depth, known.T_W_C);
+          st.stamp_s = source->stamp(i);
           st.tracked = true;
-          st.T_W_C = it->T_W_C;
+          st.T_W_C = known.T_W_C;
         } else {
           st = tracker.track(depth, source->stamp(i));
           if (mapper) {
@@ -207,6 +213,7 @@ int main(int argc, char** argv) {
         }
       } catch (const std::exception& e) {  // unreadable or wrong-size frame: flag it, go on
         ++bad_frames;
+        st.tracked = false;  // the tracker may have succeeded before the mapper threw
         st.stamp_s = source->stamp(i);
         st.failure = e.what();
         st.T_W_C = tracker.pose();
