@@ -14,12 +14,13 @@
 #include <numeric>
 #include <sstream>
 
+#include "depth_track/core/angles.hpp"
+
 namespace depth_track {
 
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 /// A plane in inverse depth: 1/z = g + a x + b y, x and y normalised image coordinates.
 struct InvPlane {

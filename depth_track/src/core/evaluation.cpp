@@ -10,11 +10,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "depth_track/core/angles.hpp"
+
 namespace depth_track {
 
 namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 void checkPairs(std::size_t est, std::size_t gt, std::size_t min_count, const char* what) {
   if (est != gt) {

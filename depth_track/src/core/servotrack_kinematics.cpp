@@ -6,14 +6,14 @@
 #include <optional>
 #include <stdexcept>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/camera.hpp"
+#include "depth_track/core/se3.hpp"
 
 namespace depth_track {
 
 namespace {
 bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
-
-constexpr double kDegToRad = M_PI / 180.0;
 
 template <class Sample>
 void checkStream(const std::vector<Sample>& s, const char* name) {
@@ -155,9 +155,7 @@ std::vector<std::string> TruckGeometry::validate() const {
     problems.push_back("truck steer_lag_s must be >= 0");
   if (!(speed_lag_s >= 0.0 && std::isfinite(speed_lag_s)))
     problems.push_back("truck speed_lag_s must be >= 0");
-  if (!T_B_C.matrix().allFinite() ||
-      !(T_B_C.linear().transpose() * T_B_C.linear()).isIdentity(1e-6))
-    problems.push_back("truck T_B_C must be a finite rigid transform");
+  if (!isRigid(T_B_C)) problems.push_back("truck T_B_C must be a finite rigid transform");
   return problems;
 }
 

@@ -8,15 +8,14 @@
 #include <stdexcept>
 #include <string>
 
+#include "../shared_data.hpp"
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/tum_io.hpp"
-#include "../shared_data.hpp"
 
 using namespace depth_track;
 
 namespace {
-
-constexpr double kDeg = M_PI / 180.0;
 
 Eigen::Isometry3d pose(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -27,8 +26,8 @@ Eigen::Isometry3d pose(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
 
 // Ground truth: a camera on a slow helix, yawing and pitching (deterministic formulas).
 Eigen::Isometry3d gtPose(double t) {
-  const Eigen::Matrix3d R = rotationFromThesisEuler(
-      Eigen::Vector3d(10 * kDeg * std::sin(0.7 * t), 40 * kDeg * t, 3 * kDeg * std::cos(1.3 * t)));
+  const Eigen::Matrix3d R = rotationFromThesisEuler(Eigen::Vector3d(
+      10 * kDegToRad * std::sin(0.7 * t), 40 * kDegToRad * t, 3 * kDegToRad * std::cos(1.3 * t)));
   return pose(R, Eigen::Vector3d(0.5 * std::cos(0.5 * t), 0.3 * t, 0.5 * std::sin(0.5 * t)));
 }
 
@@ -37,10 +36,11 @@ Eigen::Isometry3d gtPose(double t) {
 Eigen::Isometry3d estPose(double t, int i) {
   const Eigen::Isometry3d T_Wother_W =
       pose(rotationFromThesisEuler(Eigen::Vector3d(0.2, -1.0, 0.4)), Eigen::Vector3d(1, -2, 3));
-  const Eigen::Isometry3d err = pose(
-      rotationFromThesisEuler(Eigen::Vector3d(
-          0.5 * kDeg * std::sin(i / 7.0), 1.2 * kDeg * i / 150.0, -0.3 * kDeg * std::cos(i / 5.0))),
-      Eigen::Vector3d(2e-4 * i, -5e-3 * std::sin(i / 9.0), 3e-3 * std::cos(i / 13.0)));
+  const Eigen::Isometry3d err =
+      pose(rotationFromThesisEuler(Eigen::Vector3d(0.5 * kDegToRad * std::sin(i / 7.0),
+                                                   1.2 * kDegToRad * i / 150.0,
+                                                   -0.3 * kDegToRad * std::cos(i / 5.0))),
+           Eigen::Vector3d(2e-4 * i, -5e-3 * std::sin(i / 9.0), 3e-3 * std::cos(i / 13.0)));
   return T_Wother_W * gtPose(t) * err;
 }
 
@@ -50,11 +50,12 @@ TEST(ThesisEuler, RoundTripAndConvention) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> pitch(-89.0, 89.0), other(-179.0, 179.0);
   for (int i = 0; i < 200; ++i) {
-    const Eigen::Vector3d th(pitch(rng) * kDeg, other(rng) * kDeg, other(rng) * kDeg);
+    const Eigen::Vector3d th(pitch(rng) * kDegToRad, other(rng) * kDegToRad,
+                             other(rng) * kDegToRad);
     const Eigen::Matrix3d R = rotationFromThesisEuler(th);
     EXPECT_NEAR(R.determinant(), 1.0, 1e-12);
     const Eigen::Vector3d back = thesisEulerFromRotation(R);
-    EXPECT_LT((back - th).norm(), 1e-9) << th.transpose() / kDeg;
+    EXPECT_LT((back - th).norm(), 1e-9) << th.transpose() / kDegToRad;
 
     // Eq. 2.59 element by element (global-to-camera T_CG = R_W_C^T), with the typo in element
     // (2,1) corrected to -sin(θz) cos(θy).
@@ -77,11 +78,11 @@ TEST(ThesisEuler, RoundTripAndConvention) {
   lin(2, 1) = small.x();
   EXPECT_LT((rotationFromThesisEuler(small) - lin).cwiseAbs().maxCoeff(), 1e-5);
   // Pure axes: positive pitch turns camera z (forward) towards -y (up in the optical frame).
-  const Eigen::Matrix3d Rp = rotationFromThesisEuler(Eigen::Vector3d(30 * kDeg, 0, 0));
+  const Eigen::Matrix3d Rp = rotationFromThesisEuler(Eigen::Vector3d(30 * kDegToRad, 0, 0));
   EXPECT_NEAR((Rp * Eigen::Vector3d::UnitZ()).y(), -0.5, 1e-12);
   // Gimbal lock: angles are not unique but the rotation is reproduced.
   const Eigen::Matrix3d G =
-      rotationFromThesisEuler(Eigen::Vector3d(90 * kDeg, 20 * kDeg, 35 * kDeg));
+      rotationFromThesisEuler(Eigen::Vector3d(90 * kDegToRad, 20 * kDegToRad, 35 * kDegToRad));
   EXPECT_LT((rotationFromThesisEuler(thesisEulerFromRotation(G)) - G).norm(), 1e-6);
 }
 
@@ -133,7 +134,7 @@ TEST(Evaluation, HandComputedThesisErrors) {
   // frame 2, and 2 degrees off in yaw at frame 3. By hand, in the start camera frame:
   //   frame 2: position error (+10, 0, 0) mm; frame 3: rotation error (0, 2, 0) deg, no
   //   position error -> max_err_mm = (10, 0, 0), max_err_deg = (0, 2, 0), end drift 0 mm.
-  const Eigen::Matrix3d R0 = rotationFromThesisEuler(Eigen::Vector3d(0, 90 * kDeg, 0));
+  const Eigen::Matrix3d R0 = rotationFromThesisEuler(Eigen::Vector3d(0, 90 * kDegToRad, 0));
   std::vector<Eigen::Isometry3d> gt, est;
   const Eigen::Isometry3d T_other_W =
       pose(rotationFromThesisEuler(Eigen::Vector3d(0.1, 0.2, 0.3)), Eigen::Vector3d(-4, 1, 0.5));
@@ -141,7 +142,7 @@ TEST(Evaluation, HandComputedThesisErrors) {
     const Eigen::Isometry3d g = pose(R0, R0 * Eigen::Vector3d(0, 0, i / 3.0));
     Eigen::Isometry3d e = g;
     if (i == 2) e.translation() += R0 * Eigen::Vector3d(0.01, 0, 0);
-    if (i == 3) e.linear() = R0 * rotationFromThesisEuler(Eigen::Vector3d(0, 2 * kDeg, 0));
+    if (i == 3) e.linear() = R0 * rotationFromThesisEuler(Eigen::Vector3d(0, 2 * kDegToRad, 0));
     gt.push_back(g);
     est.push_back(T_other_W * e);
   }
@@ -160,10 +161,10 @@ TEST(Evaluation, ThesisEulerErrorsWrapAround) {
   // Ground truth yaws to 179 degrees, the estimate to -179: 2 degrees apart, not 358.
   std::vector<Eigen::Isometry3d> gt = {Eigen::Isometry3d::Identity()},
                                  est = {Eigen::Isometry3d::Identity()};
-  gt.push_back(
-      pose(rotationFromThesisEuler(Eigen::Vector3d(0, 179 * kDeg, 0)), Eigen::Vector3d::Zero()));
-  est.push_back(
-      pose(rotationFromThesisEuler(Eigen::Vector3d(0, -179 * kDeg, 0)), Eigen::Vector3d::Zero()));
+  gt.push_back(pose(rotationFromThesisEuler(Eigen::Vector3d(0, 179 * kDegToRad, 0)),
+                    Eigen::Vector3d::Zero()));
+  est.push_back(pose(rotationFromThesisEuler(Eigen::Vector3d(0, -179 * kDegToRad, 0)),
+                     Eigen::Vector3d::Zero()));
   const ThesisErrors t = computeThesisErrors(est, gt);
   EXPECT_NEAR(t.max_euler_err_deg.y(), 2.0, 1e-9);
   EXPECT_NEAR(t.max_err_deg.y(), 2.0, 1e-9);
@@ -305,7 +306,7 @@ Trajectory rt2Truth(double t0, double t1) {
   // Stamps on the readings' 30 Hz grid (whole multiples, no accumulated rounding).
   for (int i = static_cast<int>(std::lround(t0 * 30.0)); i <= std::lround(t1 * 30.0); ++i) {
     const double t = i / 30.0;
-    gt.push_back({t, cameraPoseOnTrack(0.095 * t, 0.0, yawAt(t) * kDeg)});
+    gt.push_back({t, cameraPoseOnTrack(0.095 * t, 0.0, yawAt(t) * kDegToRad)});
   }
   return gt;
 }
@@ -370,7 +371,7 @@ TEST(RunEvaluation, TableUsesGroundTruthWhenThereIsSome) {
         ((truth[0].T_W_C.inverse() * truth[i].T_W_C).rotation() * Eigen::Vector3d(2, 0, 0))
             .cwiseAbs());
   EXPECT_NEAR(expected.x(), 2.0, 1e-9);
-  EXPECT_NEAR(expected.z(), 2.0 * std::sin(10.0 * kDeg), 1e-3);
+  EXPECT_NEAR(expected.z(), 2.0 * std::sin(10.0 * kDegToRad), 1e-3);
   for (const ReferenceScore& r : run.scores) {
     ASSERT_TRUE(r.evaluation) << r.problem;
     EXPECT_EQ(r.evaluation->thesis.frames, est.size());

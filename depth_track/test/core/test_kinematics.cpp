@@ -5,12 +5,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "depth_track/core/angles.hpp"
+#include "depth_track/core/se3.hpp"
 #include "depth_track/core/servotrack_kinematics.hpp"
 
 using namespace depth_track;
 
 namespace {
-constexpr double kDeg = M_PI / 180.0;
 // Pure geometry in double precision: only rounding error remains.
 constexpr double kTol = 1e-12;
 
@@ -42,7 +43,7 @@ TEST(Kinematics, TrackPositionTranslatesAlongDirection) {
 
 TEST(Kinematics, PositivePitchIsNoseUpAboutThePitchAxis) {
   const TrackGeometry g;
-  const double p = 10.0 * kDeg;
+  const double p = 10.0 * kDegToRad;
   const Eigen::Isometry3d T = cameraPoseOnTrack(0.2, p, 0.0, g);
   EXPECT_NEAR((opticalAxis(T) - Eigen::Vector3d(std::cos(p), 0.0, std::sin(p))).norm(), 0.0, kTol);
   // Image rows stay horizontal (no roll): optical x keeps zero z component.
@@ -58,14 +59,14 @@ TEST(Kinematics, PositivePitchIsNoseUpAboutThePitchAxis) {
 
 TEST(Kinematics, PositiveYawTurnsLeft) {
   const TrackGeometry g;
-  const double y = 15.0 * kDeg;
+  const double y = 15.0 * kDegToRad;
   const Eigen::Isometry3d T = cameraPoseOnTrack(0.0, 0.0, y, g);
   EXPECT_NEAR((opticalAxis(T) - Eigen::Vector3d(std::cos(y), std::sin(y), 0.0)).norm(), 0.0, kTol);
   EXPECT_NEAR((T.linear().col(1) - (-Eigen::Vector3d::UnitZ())).norm(), 0.0, kTol);
 }
 
 TEST(Kinematics, YawIsOuterAxisPitchInner) {
-  const double p = 12.0 * kDeg, y = -25.0 * kDeg;
+  const double p = 12.0 * kDegToRad, y = -25.0 * kDegToRad;
   const Eigen::Isometry3d T = cameraPoseOnTrack(0.0, p, y, TrackGeometry{});
   const Eigen::Vector3d expected(std::cos(p) * std::cos(y), std::cos(p) * std::sin(y), std::sin(p));
   EXPECT_NEAR((opticalAxis(T) - expected).norm(), 0.0, kTol);
@@ -131,11 +132,13 @@ TEST(SensorReference, ServoTrackInterpolatesBetweenReadings) {
   const double bound_deg =
       kPitchAmp * kPitchW * kPitchW * dt * dt / 8.0 + kYawAmp * kYawW * kYawW * dt * dt / 8.0;
   for (const StampedPose& p : ref) {
-    const Eigen::Isometry3d T = cameraPoseOnTrack(trackPos(p.stamp_s), pitchDeg(p.stamp_s) * kDeg,
-                                                  yawDeg(p.stamp_s) * kDeg, g.track);
+    const Eigen::Isometry3d T =
+        cameraPoseOnTrack(trackPos(p.stamp_s), pitchDeg(p.stamp_s) * kDegToRad,
+                          yawDeg(p.stamp_s) * kDegToRad, g.track);
     const double ang = Eigen::AngleAxisd(T.rotation().transpose() * p.T_W_C.rotation()).angle();
-    EXPECT_LE(ang, bound_deg * kDeg + 1e-12) << p.stamp_s;
-    EXPECT_LE((T.translation() - p.T_W_C.translation()).norm(), 0.06 * bound_deg * kDeg + 1e-12);
+    EXPECT_LE(ang, bound_deg * kDegToRad + 1e-12) << p.stamp_s;
+    EXPECT_LE((T.translation() - p.T_W_C.translation()).norm(),
+              0.06 * bound_deg * kDegToRad + 1e-12);
   }
   // A shift reads the sensors shift_s after each frame.
   const Trajectory shifted = sensorTrajectory(s, {2.0, 3.0}, g, 0.1);
@@ -155,7 +158,7 @@ TEST(SensorReference, TruckDeadReckoningFollowsTheBicycle) {
   // circle of radius L / tan(30 deg) = 0.554 m counter-clockwise from (0, 0) heading +x.
   RigSensorStreams s;
   for (int i = 0; i <= 300; ++i) s.truck.push_back({5.0 + i / 30.0, 0.35, -1.0});
-  const double R = g.truck.wheelbase_m / std::tan(g.truck.max_steer_deg * kDeg);
+  const double R = g.truck.wheelbase_m / std::tan(g.truck.max_steer_deg * kDegToRad);
   const Trajectory ref = sensorTrajectory(s, {5.0, 7.5, 10.0, 15.0, 15.5}, g);
   ASSERT_EQ(ref.size(), 4u);  // 15.5 s is after the last reading
   for (const StampedPose& p : ref) {
@@ -201,4 +204,31 @@ TEST(SensorReference, BadStreamsAreNamed) {
   tg.wheelbase_m = 0.0;
   tg.max_steer_deg = 95.0;
   EXPECT_EQ(tg.validate().size(), 2u);
+}
+
+// isRigid is the one rigid-pose check (kinematics, scene, voxel map): a reflection is orthonormal
+// but not a pose, a scaled rotation is refused at the configuration tolerance.
+TEST(Se3, IsRigidRefusesReflectionsScalingAndNonFinitePoses) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).matrix();
+  T.translation() = Eigen::Vector3d(1.0, 2.0, 3.0);
+  EXPECT_TRUE(isRigid(T));
+  Eigen::Isometry3d mirrored = T;
+  mirrored.linear().col(0) *= -1.0;
+  EXPECT_LT(orthonormalityError(mirrored.linear()), 1e-12);
+  EXPECT_FALSE(isRigid(mirrored, 1.0));
+  Eigen::Isometry3d scaled = T;
+  scaled.linear() *= 1.001;  // |R^T R - I| = sqrt(3) (1.001^2 - 1) = 3.5e-3
+  EXPECT_NEAR(orthonormalityError(scaled.linear()), std::sqrt(3.0) * (1.001 * 1.001 - 1.0), 1e-9);
+  EXPECT_FALSE(isRigid(scaled));
+  EXPECT_FALSE(isRigid(scaled, 1e-3));
+  EXPECT_TRUE(isRigid(scaled, 1e-2));
+  Eigen::Isometry3d nan = T;
+  nan.translation().x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(isRigid(nan, 1.0));
+  TruckGeometry tg;
+  EXPECT_TRUE(tg.validate().empty());
+  tg.T_B_C = mirrored;
+  ASSERT_EQ(tg.validate().size(), 1u);
+  EXPECT_NE(tg.validate()[0].find("T_B_C"), std::string::npos);
 }

@@ -5,6 +5,7 @@
 #include <random>
 #include <set>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/registration.hpp"
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/tracker.hpp"
@@ -15,15 +16,14 @@ using depth_track::test::cornerRoom;
 using depth_track::test::renderPlanes;
 
 namespace {
-constexpr double kDeg = M_PI / 180.0;
 PinholeIntrinsics l515() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
 
 Eigen::Isometry3d motion(double rx_deg, double ry_deg, double rz_deg, double tx, double ty,
                          double tz) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(rz_deg * kDeg, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(ry_deg * kDeg, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(rx_deg * kDeg, Eigen::Vector3d::UnitX()))
+  T.linear() = (Eigen::AngleAxisd(rz_deg * kDegToRad, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(ry_deg * kDegToRad, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rx_deg * kDegToRad, Eigen::Vector3d::UnitX()))
                    .toRotationMatrix();
   T.translation() = Eigen::Vector3d(tx, ty, tz);
   return T;
@@ -140,7 +140,7 @@ TEST_P(RecoverMotion, FiveDegreesAndFiveCentimetres) {
     const Eigen::Isometry3d err = truth.inverse() * r.T_ref_cur;
     // Noise-free planes: within a millimetre and 0.05 degrees.
     EXPECT_LT(err.translation().norm(), 0.001) << toString(GetParam());
-    EXPECT_LT(rotationAngle(err) / kDeg, 0.05) << toString(GetParam());
+    EXPECT_LT(rotationAngle(err) / kDegToRad, 0.05) << toString(GetParam());
     if (GetParam() == RegistrationMethod::kCellSearch) {
       EXPECT_LE(r.fm_matches, r.matches);
     }

@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
@@ -16,7 +17,6 @@ using namespace depth_track::sim;
 
 namespace {
 
-constexpr double kDeg = M_PI / 180.0;
 // Rendered depths are stored as float: relative rounding 6e-8, i.e. < 1 um within 4 m.
 constexpr double kFloatTol_m = 1e-6;
 
@@ -50,7 +50,7 @@ TEST(Render, FrontoParallelPlaneHasExactDepth) {
 
 TEST(Render, TiltedCameraMatchesRayPlaneIntersection) {
   const PinholeIntrinsics K = l515Intrinsics();
-  const Eigen::Isometry3d T = lookingAlongX({0.1, -0.2, 1.0}, 20 * kDeg, -10 * kDeg);
+  const Eigen::Isometry3d T = lookingAlongX({0.1, -0.2, 1.0}, 20 * kDegToRad, -10 * kDegToRad);
   const double wall_x = 2.5;
   const DepthImage d = renderDepth(wallScene(wall_x), K, T, DepthRange{0.1, 10.0});
   for (int v = 0; v < K.height; v += 7)
@@ -79,7 +79,7 @@ TEST(Render, SphereCentreDepth) {
 TEST(Render, BackProjectedPixelsLieOnTheScene) {
   const Scene scene = chairRoomScene();
   const PinholeIntrinsics K = l515Intrinsics();
-  const Eigen::Isometry3d T_W_C = cameraPoseOnTrack(0.37, 14 * kDeg, -9 * kDeg);
+  const Eigen::Isometry3d T_W_C = cameraPoseOnTrack(0.37, 14 * kDegToRad, -9 * kDegToRad);
   const DepthImage d = renderDepth(scene, K, T_W_C, DepthRange{});
   int valid = 0;
   for (int v = 0; v < K.height; v += 3)
@@ -100,7 +100,7 @@ TEST(Render, CulledRendererEqualsBruteForce) {
   // Smaller image, same field of view, so the brute-force reference stays quick.
   const PinholeIntrinsics K = PinholeIntrinsics::isotropic(160, 120, 458.0 / 4.0);
   for (const Scene& scene : {chairRoomScene(), furnishedRoomScene(), hallwayScene()}) {
-    const Eigen::Isometry3d T = lookingAlongX({0.2, 0.1, 0.5}, 35 * kDeg, 12 * kDeg);
+    const Eigen::Isometry3d T = lookingAlongX({0.2, 0.1, 0.5}, 35 * kDegToRad, 12 * kDegToRad);
     const DepthImage a = renderDepth(scene, K, T, DepthRange{});
     const DepthImage b = renderDepthReference(scene, K, T, DepthRange{});
     for (std::size_t i = 0; i < a.data.size(); ++i)
@@ -111,7 +111,7 @@ TEST(Render, CulledRendererEqualsBruteForce) {
 TEST(Render, ThreadCountDoesNotChangeTheFrame) {
   const Scene scene = chairRoomScene();
   const PinholeIntrinsics K = l515Intrinsics();
-  const Eigen::Isometry3d T = cameraPoseOnTrack(0.5, 5 * kDeg, 3 * kDeg);
+  const Eigen::Isometry3d T = cameraPoseOnTrack(0.5, 5 * kDegToRad, 3 * kDegToRad);
   const DepthImage a = renderDepth(scene, K, T, DepthRange{}, 1);
   const DepthImage b = renderDepth(scene, K, T, DepthRange{}, 2);
   EXPECT_EQ(a.data, b.data);

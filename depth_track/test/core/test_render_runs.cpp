@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
@@ -12,7 +13,6 @@ using namespace depth_track;
 using namespace depth_track::sim;
 
 namespace {
-constexpr double kDeg = M_PI / 180.0;
 constexpr double kPoseTol = 1e-9;  // poses are computed in closed form (double rounding only)
 
 double fractionValid(const DepthImage& d) {
@@ -81,11 +81,11 @@ TEST(RenderedRuns, Rt3PitchSinusoidAndTravel) {
     EXPECT_EQ(s.yaw_rad, 0.0);
   }
   // 30 Hz samples of a 12.6 s period: the peak is sampled within 1/60 s, cos error < 0.02 %.
-  EXPECT_NEAR(max_pitch, 20.0 * kDeg, 0.01 * kDeg);
-  EXPECT_NEAR(min_pitch, -20.0 * kDeg, 0.01 * kDeg);
+  EXPECT_NEAR(max_pitch, 20.0 * kDegToRad, 0.01 * kDegToRad);
+  EXPECT_NEAR(min_pitch, -20.0 * kDegToRad, 0.01 * kDegToRad);
   // Quarter period (3.15 s = frame 94.5): near the positive peak, camera nose up.
-  EXPECT_GT(run.rig[95].pitch_rad, 19.9 * kDeg);
-  EXPECT_GT(run.T_W_C[95].linear().col(2).z(), std::sin(19.9 * kDeg));
+  EXPECT_GT(run.rig[95].pitch_rad, 19.9 * kDegToRad);
+  EXPECT_GT(run.T_W_C[95].linear().col(2).z(), std::sin(19.9 * kDegToRad));
   EXPECT_NEAR(run.rig.back().track_pos_m, 0.042 * 749.0 / 30.0, 1e-12);
   // Even fully pitched the camera sees mostly surfaces within range.
   for (std::size_t i : {std::size_t{95}, std::size_t{284}, std::size_t{749}}) {
@@ -111,8 +111,8 @@ TEST(RenderedRuns, RealTimeTableCases) {
       ymax = std::max(ymax, std::abs(s.yaw_rad));
     }
     // Slow sinusoids (1/12 or 1/24 Hz) sampled at 30 Hz reach their peak within 0.1 %.
-    EXPECT_NEAR(pmax, c.pitch_deg * kDeg, 0.001 * c.pitch_deg * kDeg + 1e-12) << c.name;
-    EXPECT_NEAR(ymax, c.yaw_deg * kDeg, 0.001 * c.yaw_deg * kDeg + 1e-12) << c.name;
+    EXPECT_NEAR(pmax, c.pitch_deg * kDegToRad, 0.001 * c.pitch_deg * kDegToRad + 1e-12) << c.name;
+    EXPECT_NEAR(ymax, c.yaw_deg * kDegToRad, 0.001 * c.yaw_deg * kDegToRad + 1e-12) << c.name;
     // Every table 5.4 run covers about a metre of track.
     const double travel = run.rig.back().track_pos_m - run.rig.front().track_pos_m;
     EXPECT_NEAR(travel, c.speed_mps * (c.frames - 1) / 30.0, 1e-12) << c.name;

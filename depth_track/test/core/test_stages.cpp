@@ -11,6 +11,7 @@
 #include <random>
 #include <thread>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/cell_reducer.hpp"
 #include "depth_track/core/prefilter_stage.hpp"
@@ -27,12 +28,11 @@ using depth_track::test::Plane;
 using depth_track::test::renderPlanes;
 
 namespace {
-constexpr double kDeg = M_PI / 180.0;
 PinholeIntrinsics l515() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
 
 Eigen::Isometry3d shifted(double tx, double ty, double tz, double ry_deg = 0.0) {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Eigen::AngleAxisd(ry_deg * kDeg, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  T.linear() = Eigen::AngleAxisd(ry_deg * kDegToRad, Eigen::Vector3d::UnitY()).toRotationMatrix();
   T.translation() = Eigen::Vector3d(tx, ty, tz);
   return T;
 }
@@ -232,7 +232,7 @@ TEST(CellOdometry, LostThenRelocalisedAgainstAModelView) {
   EXPECT_EQ(tracker.odometry().state(), TrackingState::kTracking);
   const Eigen::Isometry3d err = truth(i - 1).inverse() * tracker.pose();
   EXPECT_LT(err.translation().norm(), 1e-3);  // noise-free planes: within a millimetre
-  EXPECT_LT(rotationAngle(err) / kDeg, 0.05);
+  EXPECT_LT(rotationAngle(err) / kDegToRad, 0.05);
   // Tracking goes on from there.
   const FrameStatus s =
       tracker.track(renderPlanes(cornerRoom(), K, shifted(0.06, 0.0, 0.01)), i / 30.0);

@@ -31,6 +31,19 @@ inline double rotationAngle(const Eigen::Isometry3d& T) {
   return Eigen::AngleAxisd(T.rotation()).angle();
 }
 
+/// How far R is from a rotation's orthonormality: |R^T R - I| (Frobenius norm). Thread-safe.
+inline double orthonormalityError(const Eigen::Matrix3d& R) {
+  return (R.transpose() * R - Eigen::Matrix3d::Identity()).norm();
+}
+
+/// True when T is finite and its linear part a proper rotation: orthonormalityError <= tol and
+/// det > 0 (a reflection is not a pose). The default suits poses written in a configuration;
+/// a pose composed from many tracked increments needs a looser tol. Thread-safe.
+inline bool isRigid(const Eigen::Isometry3d& T, double tol = 1e-6) {
+  return T.matrix().allFinite() && orthonormalityError(T.linear()) <= tol &&
+         T.linear().determinant() > 0.0;
+}
+
 /// Re-orthonormalises the rotation part (guards long products of transforms against drift).
 inline Eigen::Isometry3d orthonormalized(const Eigen::Isometry3d& T) {
   Eigen::Isometry3d out = T;

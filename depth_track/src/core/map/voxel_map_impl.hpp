@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "depth_track/core/map/voxel_map.hpp"
+#include "depth_track/core/se3.hpp"
 
 namespace depth_track {
 namespace map_detail {
@@ -29,15 +30,15 @@ constexpr int kKeyLimit = 32766;                  // OctoMap keys are index + 32
 constexpr std::size_t kMaxChunkIndex = 1u << 24;  // dense chunk index entries (128 MB of pointers)
 
 // Throws std::invalid_argument when T is not a finite rigid transform.
+// The 1e-3 tolerance admits the rounding of a tracked pose, a product of many increments.
 inline void checkPose(const Eigen::Isometry3d& T, const char* what) {
   if (!T.matrix().allFinite())
     throw std::invalid_argument(std::string(what) + ": pose T_W_C is not finite");
-  const Eigen::Matrix3d R = T.linear();
-  const double orth = (R.transpose() * R - Eigen::Matrix3d::Identity()).norm();
-  if (orth > 1e-3 || R.determinant() < 0.0) {
+  if (!isRigid(T, 1e-3)) {
     std::ostringstream s;
-    s << what << ": pose T_W_C has no valid rotation (|R^T R - I| = " << orth
-      << ", det = " << R.determinant() << ")";
+    s << what
+      << ": pose T_W_C has no valid rotation (|R^T R - I| = " << orthonormalityError(T.linear())
+      << ", det = " << T.linear().determinant() << ")";
     throw std::invalid_argument(s.str());
   }
 }

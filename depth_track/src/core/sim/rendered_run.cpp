@@ -5,14 +5,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/sim/render.hpp"
 
 namespace depth_track {
 namespace sim {
-
-namespace {
-constexpr double kDeg = M_PI / 180.0;
-}  // namespace
 
 PinholeIntrinsics l515Intrinsics() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
 
@@ -73,7 +70,8 @@ RenderedRun makeTrackRun(const TrackRunSpec& spec, const Scene& scene, const Tra
   auto add = [&](double t, double pos, double angle_t) {
     RigSample s;
     s.track_pos_m = pos;
-    const double a = spec.amplitude_deg * kDeg * std::sin(2.0 * M_PI * spec.frequency_hz * angle_t);
+    const double a =
+        spec.amplitude_deg * kDegToRad * std::sin(2.0 * M_PI * spec.frequency_hz * angle_t);
     if (spec.axis == TrackRunSpec::Axis::kPitch) s.pitch_rad = a;
     if (spec.axis == TrackRunSpec::Axis::kYaw) s.yaw_rad = a;
     run.stamps_s.push_back(t);
@@ -87,9 +85,9 @@ RenderedRun makeTrackRun(const TrackRunSpec& spec, const Scene& scene, const Tra
     run.pose_at = [spec, track, t_move](double t) {
       const double tm = std::max(0.0, t - t_move);
       const double pos = spec.start_pos_m + spec.speed_mps * tm;
-      const double a =
-          t < t_move ? 0.0
-                     : spec.amplitude_deg * kDeg * std::sin(2.0 * M_PI * spec.frequency_hz * tm);
+      const double a = t < t_move ? 0.0
+                                  : spec.amplitude_deg * kDegToRad *
+                                        std::sin(2.0 * M_PI * spec.frequency_hz * tm);
       return cameraPoseOnTrack(pos, spec.axis == TrackRunSpec::Axis::kPitch ? a : 0.0,
                                spec.axis == TrackRunSpec::Axis::kYaw ? a : 0.0, track);
     };

@@ -5,6 +5,8 @@
 #include <limits>
 #include <sstream>
 
+#include "depth_track/core/se3.hpp"
+
 namespace depth_track {
 namespace sim {
 
@@ -221,9 +223,9 @@ std::vector<std::string> Scene::validate() const {
     const Primitive& p = primitives[i];
     std::ostringstream who;
     who << "primitive " << i << " ('" << p.label << "')";
-    if (!p.T_W_P.matrix().allFinite()) problems.push_back(who.str() + " has a non-finite pose");
-    const Eigen::Matrix3d R = p.T_W_P.linear();
-    if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-6)
+    if (!p.T_W_P.matrix().allFinite())
+      problems.push_back(who.str() + " has a non-finite pose");
+    else if (!isRigid(p.T_W_P))
       problems.push_back(who.str() + " has a pose that is not a rigid rotation");
     const Eigen::Vector3d& h = p.half_extents;
     const bool flat = p.shape == Shape::kRectangle;
