@@ -31,6 +31,7 @@
 
 #include "../tracking_options.hpp"
 #include "bag_run.hpp"
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/map/mapper.hpp"
@@ -170,7 +171,7 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const FrameRecord& f = frames[i];
     const Eigen::Isometry3d T = T_C0_W * f.T_W_C;
-    const Eigen::Vector3d e = thesisEulerFromRotation(T.rotation()) * (180.0 / M_PI);
+    const Eigen::Vector3d e = thesisEulerFromRotation(T.rotation()) * kRadToDeg;
     const Eigen::Vector3d p = 1000.0 * T.translation();
     std::snprintf(buf, sizeof(buf), "%zu,%zu,%.6f,%d,%.5f,%.5f,%.5f,%.3f,%.3f,%.3f", i, f.message,
                   f.stamp_s, f.tracked ? 1 : 0, e.x(), e.y(), e.z(), p.x(), p.y(), p.z());

@@ -9,7 +9,6 @@ namespace rig_drivers {
 namespace protocol {
 
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 
 std::string trimmed(const std::ostringstream& e) {
   std::string s = e.str();
@@ -43,9 +42,9 @@ double Rng::normal() {
   while (u1 <= 0.0) u1 = uniform();
   const double u2 = uniform();
   const double r = std::sqrt(-2.0 * std::log(u1));
-  spare_ = r * std::sin(2 * kPi * u2);
+  spare_ = r * std::sin(2 * M_PI * u2);
   have_spare_ = true;
-  return r * std::cos(2 * kPi * u2);
+  return r * std::cos(2 * M_PI * u2);
 }
 
 // ---- belt
@@ -64,7 +63,7 @@ std::string BeltCarriageConfig::validate() const {
 }
 
 BeltCarriageModel::BeltCarriageModel(const BeltCarriageConfig& config)
-    : config_(checked(config, "BeltCarriageConfig")), w_(2 * kPi * config.natural_freq_hz) {}
+    : config_(checked(config, "BeltCarriageConfig")), w_(2 * M_PI * config.natural_freq_hz) {}
 
 void BeltCarriageModel::reset(double x_m) {
   x_ = x_m;

@@ -1,4 +1,5 @@
 #include "rig_drivers/sim/rig_sim.hpp"
+#include "depth_track/core/angles.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -18,8 +19,6 @@ using protocol::MsgId;
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
 constexpr double kG = 9.80665;  // m/s^2
 /// Sequence numbers of the simulator's own host (autopilot) start here, far above any external
 /// host's counter, so their acks can be told apart.
@@ -357,7 +356,7 @@ RigSimulator::Impl::Impl(const Scenario& s, const RigSimConfig& c) : sc(s), cfg(
     TruckState start;
     start.x_m = sc.truck.start_x_m;
     start.y_m = sc.truck.start_y_m;
-    start.heading_rad = sc.truck.start_heading_deg * kDeg;
+    start.heading_rad = sc.truck.start_heading_deg * depth_track::kDegToRad;
     truck = std::make_unique<TruckModel>(cfg.truck, start);
     const protocol::TruckDrvConfig tc = protocol::TruckDrvConfig::defaults();
     truck_hw = std::make_unique<SimTruckHardware>(truck_out, tc, sc.truck, mix(seed, 5));
@@ -453,7 +452,7 @@ void RigSimulator::Impl::onAck(const protocol::Ack& ack) {
 
 double RigSimulator::Impl::servoDemand(ServoAxis axis, double t_run) const {
   if (sc.track.servo_axis != axis || sc.track.mode != 1) return 0.0;
-  return sc.track.amplitude_deg * std::sin(2.0 * kPi * sc.track.frequency_hz * t_run);
+  return sc.track.amplitude_deg * std::sin(2.0 * M_PI * sc.track.frequency_hz * t_run);
 }
 
 RigTruth RigSimulator::Impl::truthNow() const {
@@ -466,8 +465,9 @@ RigTruth RigSimulator::Impl::truthNow() const {
     r.yaw_deg = yaw_servo->angle();
     r.pitch_dem_deg = car_hw->pitch_target_deg;
     r.yaw_dem_deg = car_hw->yaw_target_deg;
-    r.T_W_C = depth_track::cameraPoseOnTrack(r.track_pos_m, r.pitch_deg * kDeg, r.yaw_deg * kDeg,
-                                             cfg.track_geometry);
+    r.T_W_C =
+        depth_track::cameraPoseOnTrack(r.track_pos_m, r.pitch_deg * depth_track::kDegToRad,
+                                       r.yaw_deg * depth_track::kDegToRad, cfg.track_geometry);
     r.T_W_B = r.T_W_C;
     r.T_W_B.linear() = r.T_W_C.linear() * depth_track::rotationBodyFromOptical().transpose();
     // Specific force in camera optical axes: carriage acceleration along the track minus gravity.

@@ -1,4 +1,5 @@
 #include "rig_drivers/sim/rig_sim_truck.hpp"
+#include "depth_track/core/angles.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -7,8 +8,7 @@
 namespace rig_drivers {
 
 namespace {
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
+
 }  // namespace
 
 std::vector<std::string> TruckModelConfig::validate() const {
@@ -47,7 +47,8 @@ void TruckModel::step(double dt_s, double demanded_speed_mps, double steering) {
   const double v_target = std::clamp(demanded_speed_mps * (1.0 + config_.speed_scale_error),
                                      -config_.max_speed_mps, config_.max_speed_mps);
   // RC convention: +1 = full right; the model's steer angle is positive to the left.
-  const double steer_target = -std::clamp(steering, -1.0, 1.0) * config_.max_steer_deg * kDeg;
+  const double steer_target =
+      -std::clamp(steering, -1.0, 1.0) * config_.max_steer_deg * depth_track::kDegToRad;
   // Exact discretisation of the first-order lags.
   const double a_v = 1.0 - std::exp(-dt_s / config_.speed_time_constant_s);
   const double a_s = 1.0 - std::exp(-dt_s / config_.steer_time_constant_s);
@@ -67,7 +68,7 @@ void TruckModel::step(double dt_s, double demanded_speed_mps, double steering) {
     state_.x_m += r * (std::sin(state_.heading_rad + dpsi) - std::sin(state_.heading_rad));
     state_.y_m -= r * (std::cos(state_.heading_rad + dpsi) - std::cos(state_.heading_rad));
   }
-  state_.heading_rad = std::remainder(state_.heading_rad + dpsi, 2.0 * kPi);
+  state_.heading_rad = std::remainder(state_.heading_rad + dpsi, 2.0 * M_PI);
   state_.odometer_m += std::abs(ds);
 }
 
@@ -86,7 +87,8 @@ Eigen::Isometry3d TruckModel::T_B_C() const {
       -1, 0, 0,               //
       0, -1, 0;
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Eigen::AngleAxisd(-config_.camera_pitch_deg * kDeg, Eigen::Vector3d::UnitY())
+  T.linear() = Eigen::AngleAxisd(-config_.camera_pitch_deg * depth_track::kDegToRad,
+                                 Eigen::Vector3d::UnitY())
                    .toRotationMatrix() *
                R_body_optical;
   T.translation() = Eigen::Vector3d(config_.camera_forward_m, 0.0, config_.camera_height_m);
@@ -94,7 +96,7 @@ Eigen::Isometry3d TruckModel::T_B_C() const {
 }
 
 double TruckModel::minTurnRadius() const {
-  return config_.wheelbase_m / std::tan(config_.max_steer_deg * kDeg);
+  return config_.wheelbase_m / std::tan(config_.max_steer_deg * depth_track::kDegToRad);
 }
 
 }  // namespace rig_drivers

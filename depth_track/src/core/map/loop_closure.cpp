@@ -1,4 +1,5 @@
 #include "depth_track/core/map/loop_closure.hpp"
+#include "depth_track/core/angles.hpp"
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
@@ -203,7 +204,7 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
   r.matches = res.matches;
   r.error_rms_m = res.error_rms_m;
   r.correction_m = res.T_ref_cur.translation().norm();
-  r.correction_deg = rotationAngle(res.T_ref_cur) * 180.0 / M_PI;
+  r.correction_deg = rotationAngle(res.T_ref_cur) * kRadToDeg;
   if (res.matches < config.min_matches) {
     why << "too few matches: " << res.matches << " cell pairs (< " << config.min_matches << ")";
   } else if (!res.failure.empty()) {
