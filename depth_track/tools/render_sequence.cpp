@@ -17,6 +17,7 @@
 #include <sstream>
 #include <string>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/sim/noise.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tum_io.hpp"
@@ -112,7 +113,7 @@ int main(int argc, char** argv) {
       if (run.on_track) {
         const sim::RigSample& r = run.rig[i];
         rig_list << stampName(run.stamps_s[i]) << " " << std::setprecision(6) << r.track_pos_m
-                 << " " << r.pitch_rad * 180.0 / M_PI << " " << r.yaw_rad * 180.0 / M_PI << "\n";
+                 << " " << r.pitch_rad * kRadToDeg << " " << r.yaw_rad * kRadToDeg << "\n";
       }
     }
     writeTextOrThrow((fs::path(out_dir) / "depth.txt").string(), depth_list.str());

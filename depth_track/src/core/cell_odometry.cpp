@@ -1,4 +1,5 @@
 #include "depth_track/core/cell_odometry.hpp"
+#include "depth_track/core/angles.hpp"
 
 #include <chrono>
 #include <cmath>
@@ -6,10 +7,6 @@
 #include <stdexcept>
 
 namespace depth_track {
-
-namespace {
-constexpr double kRadToDeg = 180.0 / M_PI;
-}  // namespace
 
 std::vector<std::string> RelocaliseConfig::validate() const {
   std::vector<std::string> p;

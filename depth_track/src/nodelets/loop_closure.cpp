@@ -14,6 +14,7 @@
 #include <tf2_ros/transform_broadcaster.h>
 #include <pluginlib/class_list_macros.hpp>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/map/loop_closure.hpp"
 #include "depth_track/core/map/mapper_params.hpp"
 #include "depth_track/ros/conversions.hpp"
@@ -101,7 +102,7 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     d.addf("last correction (mm)", "%.2f", last_correction_m_ * 1e3);
     d.addf("last correction (deg)", "%.3f", last_correction_deg_);
     d.addf("map -> odom (mm)", "%.2f", X.translation().norm() * 1e3);
-    d.addf("map -> odom (deg)", "%.3f", Eigen::AngleAxisd(X.rotation()).angle() * 180.0 / M_PI);
+    d.addf("map -> odom (deg)", "%.3f", Eigen::AngleAxisd(X.rotation()).angle() * kRadToDeg);
   }
 
   void process(const Frame& f) {
