@@ -252,7 +252,10 @@ std::shared_ptr<CellCloud> cellsFromCloud(const sensor_msgs::PointCloud2& msg, i
   cloud->grid_w = static_cast<int>(msg.width);
   cloud->grid_h = static_cast<int>(msg.height);
   cloud->grid_index.assign(n, -1);
-  // DT_CELLCLOUD_STAMP
+  // The core stages report per-frame results at the cloud's stamp (FrameStatus::stamp_s) and in
+  // its frame: carry the header's, as the offline reducer sets them.
+  cloud->stamp_s = msg.header.stamp.toSec();
+  cloud->frame_id = msg.header.frame_id;
   const auto* pts = reinterpret_cast<const CellPoint*>(msg.data.data());
   for (std::size_t i = 0; i < n; ++i) {
     const CellPoint& p = pts[i];

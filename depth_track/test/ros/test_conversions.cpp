@@ -147,10 +147,14 @@ TEST(Conversions, CellCloudRoundTripIsBitExact) {
   ASSERT_GT(cells.cells.size(), 5000u);
   std_msgs::Header h;
   h.frame_id = "camera_depth_optical_frame";
+  h.stamp = ros::Time(1700000001, 673000000);
   const auto msg = conv::cellsToCloud(cells, h);
   EXPECT_EQ(msg->width, static_cast<unsigned>(cells.grid_w));
   EXPECT_EQ(msg->height, static_cast<unsigned>(cells.grid_h));
   const auto back = conv::cellsFromCloud(*msg, K.width, K.height);
+  // The header's stamp and frame reach the core's cloud (the stages report results at it).
+  EXPECT_EQ(back->stamp_s, h.stamp.toSec());
+  EXPECT_EQ(back->frame_id, h.frame_id);
   EXPECT_EQ(back->cell_size, cells.cell_size);
   EXPECT_EQ(back->grid_index, cells.grid_index);
   ASSERT_EQ(back->cells.size(), cells.cells.size());
