@@ -82,7 +82,9 @@ class Observer {
           for (const auto& t : m->transforms)
             if (t.header.frame_id == "odom" && t.child_frame_id == "base_link")
               remote_tf_.insert(t.header.stamp);
+          cv_.notify_all();
         }));
+    tf_sub_ = subs_.size() - 1;
     subs_.push_back(nh.subscribe<sensor_msgs::CompressedImage>(
         "/camera/image_rect/compressedDepth", 500,
         [this](const sensor_msgs::CompressedImage::ConstPtr& m) {
@@ -104,10 +106,22 @@ class Observer {
     }
     return ok;
   }
-  std::size_t remoteTfCount() {
-    std::lock_guard<std::mutex> lock(mutex_);
+  /// odom -> base_link transforms seen on the remote graph's tf, waiting up to timeout_s for
+  /// `expected` of them: /remote/tf and /remote/status are separate connections, so a frame's tf
+  /// (sent first) may still arrive after its status.
+  std::size_t remoteTfCount(std::size_t expected = 0, double timeout_s = 0.0) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait_for(lock, std::chrono::duration<double>(timeout_s),
+                 [&] { return remote_tf_.size() >= expected; });
     return remote_tf_.size();
   }
+  bool hasRemoteTf(const ros::Time& stamp) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return remote_tf_.count(stamp) > 0;
+  }
+  /// True once the remote graph's tf publisher is connected to this observer (a transform sent
+  /// before that is lost).
+  bool tfConnected() const { return subs_[tf_sub_].getNumPublishers() >= 1; }
   double compressedBytesPerFrame() {
     std::lock_guard<std::mutex> lock(mutex_);
     return compressed_frames_ ? double(compressed_bytes_) / compressed_frames_ : 0.0;
@@ -115,6 +129,7 @@ class Observer {
 
  private:
   std::vector<ros::Subscriber> subs_;
+  std::size_t tf_sub_ = 0;
   std::mutex mutex_;
   std::condition_variable cv_;
   std::map<std::string, std::map<ros::Time, rig_msgs::TrackingStatus>> status_;
@@ -143,7 +158,7 @@ std::string nodeUri(const std::string& node) {
   return static_cast<std::string>(payload);
 }
 
-bool graphsUp(const ros::Publisher& depth, double timeout_s) {
+bool graphsUp(const ros::Publisher& depth, const Observer& obs, double timeout_s) {
   const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(timeout_s);
   const std::vector<std::string> needed = {"/single/loop_closure/status",
                                            "/remote/loop_closure/status", "/single/status",
@@ -158,7 +173,8 @@ bool graphsUp(const ros::Publisher& depth, double timeout_s) {
     const bool compressed_in =
         subs.count("/camera/image_rect/compressedDepth") &&
         subs.at("/camera/image_rect/compressedDepth").count("/remote/ingest");
-    if (found == needed.size() && compressed_in && depth.getNumSubscribers() >= 2) {
+    if (found == needed.size() && compressed_in && depth.getNumSubscribers() >= 2 &&
+        obs.tfConnected()) {
       ros::WallDuration(1.5).sleep();  // let the nodelets' own subscriptions connect
       return true;
     }
@@ -180,7 +196,7 @@ TEST(GraphRemote, SeparateProcessesOverCompressedDepthTrackLikeOneManager) {
   ros::Publisher depth = nh.advertise<sensor_msgs::Image>("/camera/image_rect", 10);
   ros::Publisher info = nh.advertise<sensor_msgs::CameraInfo>("/camera/camera_info", 10);
   ros::Publisher tf_static = nh.advertise<tf2_msgs::TFMessage>("/tf_static", 1, true);
-  ASSERT_TRUE(graphsUp(depth, 90.0)) << "the two graphs did not come up";
+  ASSERT_TRUE(graphsUp(depth, obs, 90.0)) << "the two graphs did not come up";
 
   // What makes it remote: depth reaches /remote/ingest only as compressedDepth, and each of its
   // nodelets is a process of its own (its own XML-RPC URI).
@@ -220,7 +236,9 @@ TEST(GraphRemote, SeparateProcessesOverCompressedDepthTrackLikeOneManager) {
   EXPECT_LT(max_dt, 1e-6) << "m, remote vs single manager";
   EXPECT_LT(max_dr, 1e-6) << "rad, remote vs single manager";
   // tf odom -> base_link for every frame on the remote graph's tf (it goes out before status).
-  EXPECT_EQ(obs.remoteTfCount(), static_cast<std::size_t>(kFrames));
+  EXPECT_EQ(obs.remoteTfCount(kFrames, 5.0), static_cast<std::size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i)
+    EXPECT_TRUE(obs.hasRemoteTf(rec.depth[i]->header.stamp)) << "no remote tf for frame " << i;
   std::printf(
       "remote graph (%d frames, separate processes, compressedDepth): %d tracked, vs single "
       "manager %.2g m %.2g rad; depth %.0f B/frame raw, %.0f B/frame compressedDepth (png_level "
