@@ -57,16 +57,6 @@ inline DiagnosticThresholds readDiagnosticThresholds(const ros::NodeHandle& nh) 
   return t;
 }
 
-/// The median and the 95th percentile of `v` (sorted in place); zeros when empty.
-inline std::pair<double, double> medianP95(std::vector<double>& v) {
-  if (v.empty()) return {0.0, 0.0};
-  std::sort(v.begin(), v.end());
-  const auto at = [&v](double q) {
-    return v[std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5))];
-  };
-  return {at(0.5), at(0.95)};
-}
-
 /// One nodelet's diagnostic updater with the common tasks. Thread-safe: the frame callbacks
 /// report from any thread, the updater runs on its own wall timer.
 class StageDiagnostics {
@@ -114,12 +104,12 @@ class StageDiagnostics {
   /// One frame's processing took `ms` of wall time.
   void processed(double ms) {
     std::lock_guard<std::mutex> lock(mutex_);
-    times_ms_.push_back(ms);
+    times_ms_.add(ms);
   }
   /// One frame's stamp-to-publish latency.
   void latency(double ms) {
     std::lock_guard<std::mutex> lock(mutex_);
-    latencies_ms_.push_back(ms);
+    latencies_ms_.add(ms);
   }
   /// Running totals of frames skipped (live mode) and rejected (bad input).
   void counts(std::uint64_t dropped, std::uint64_t rejected) {
@@ -135,24 +125,21 @@ class StageDiagnostics {
   const DiagnosticThresholds& thresholds() const { return t_; }
 
  private:
-  /// The period's samples, leaving `samples` empty for the next period.
-  std::vector<double> take(std::vector<double>& samples) {
-    std::vector<double> v;
+  /// The period's statistics, leaving `samples` empty for the next period.
+  RunningStats take(RunningStats& samples) {
     std::lock_guard<std::mutex> lock(mutex_);
-    v.swap(samples);
+    RunningStats v = samples;
+    samples.clear();
     return v;
   }
 
   void timeTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
-    std::vector<double> v = take(times_ms_);
-    if (v.empty()) {
+    const RunningStats v = take(times_ms_);
+    if (v.count() == 0) {
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "no frame processed in the last period");
       return;
     }
-    double sum = 0;
-    for (double x : v) sum += x;
-    const double mean = sum / v.size();
-    const auto [median, p95] = medianP95(v);
+    const double mean = v.mean(), median = v.median(), p95 = v.p95();
     if (mean > t_.time_error_ms)
       s.summaryf(diagnostic_msgs::DiagnosticStatus::ERROR, "%.1f ms per frame (> %.0f ms)", mean,
                  t_.time_error_ms);
@@ -162,11 +149,11 @@ class StageDiagnostics {
                  t_.time_warn_ms);
     else
       s.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%.1f ms per frame", mean);
-    s.add("frames", v.size());
+    s.add("frames", v.count());
     s.addf("mean (ms)", "%.2f", mean);
     s.addf("median (ms)", "%.2f", median);
     s.addf("p95 (ms)", "%.2f", p95);
-    s.addf("max (ms)", "%.2f", v.back());
+    s.addf("max (ms)", "%.2f", v.max());
   }
 
   void dropTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
@@ -195,12 +182,12 @@ class StageDiagnostics {
   }
 
   void latencyTask(diagnostic_updater::DiagnosticStatusWrapper& s) {
-    std::vector<double> v = take(latencies_ms_);
-    if (v.empty()) {
+    const RunningStats v = take(latencies_ms_);
+    if (v.count() == 0) {
       s.summary(diagnostic_msgs::DiagnosticStatus::OK, "no frame published in the last period");
       return;
     }
-    const auto [median, p95] = medianP95(v);
+    const double median = v.median(), p95 = v.p95();
     if (median > t_.latency_error_ms)
       s.summaryf(diagnostic_msgs::DiagnosticStatus::ERROR, "median %.1f ms (> %.0f ms)", median,
                  t_.latency_error_ms);
@@ -209,10 +196,10 @@ class StageDiagnostics {
                  t_.latency_warn_ms);
     else
       s.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "median %.1f ms, p95 %.1f ms", median, p95);
-    s.add("frames", v.size());
+    s.add("frames", v.count());
     s.addf("median (ms)", "%.2f", median);
     s.addf("p95 (ms)", "%.2f", p95);
-    s.addf("max (ms)", "%.2f", v.back());
+    s.addf("max (ms)", "%.2f", v.max());
   }
 
   DiagnosticThresholds t_;
@@ -221,7 +208,8 @@ class StageDiagnostics {
   std::unique_ptr<diagnostic_updater::FrequencyStatus> rate_;
   ros::WallTimer timer_;
   std::mutex mutex_;
-  std::vector<double> times_ms_, latencies_ms_;
+  // Per period (cleared by each update); the window holds far more than a period's frames.
+  RunningStats times_ms_, latencies_ms_;
   std::uint64_t inputs_ = 0, dropped_ = 0, rejected_ = 0;
   std::uint64_t last_inputs_ = 0, last_dropped_ = 0, last_rejected_ = 0;
 };
