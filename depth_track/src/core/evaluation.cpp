@@ -346,8 +346,52 @@ LatencyScan scanSensorLatency(const Trajectory& trajectory, const RigSensorStrea
     }
   }
   // Latency shows on the moving axis: the gimbal when it turns, else the carriage or truck.
-  scan.criterion = turned_deg > 1.0 ? "rotation" : "position";
-  scan.best_shift = turned_deg > 1.0 ? scan.best_rot_shift : scan.best_pos_shift;
+  const bool by_rot = turned_deg > 1.0;
+  scan.criterion = by_rot ? "rotation" : "position";
+  scan.best_shift = by_rot ? scan.best_rot_shift : scan.best_pos_shift;
+  // A minimum means a latency when the curve rises from it, two steps to either side, by more
+  // than three times the curve's own jitter. The jitter is estimated from third differences
+  // (zero on any smooth parabola- or V-shaped curve; 20 sigma^2 in variance for independent
+  // noise), robustly through their median: sensor noise that picks other readings at each shift
+  // makes dips anywhere, motion makes one clear valley.
+  const auto judge = [max_shift](const std::vector<double>& c, int best, double* rise,
+                                 double* jitter) {
+    const int i = best + max_shift;
+    if (max_shift < 4 || std::abs(best) > max_shift - 2) return false;
+    std::vector<double> d3;
+    for (std::size_t j = 0; j + 3 < c.size(); ++j)
+      d3.push_back(std::abs(c[j + 3] - 3.0 * c[j + 2] + 3.0 * c[j + 1] - c[j]));
+    std::nth_element(d3.begin(), d3.begin() + d3.size() / 2, d3.end());
+    *jitter = d3[d3.size() / 2] / 0.6745 / std::sqrt(20.0);
+    *rise = std::min(c[i - 2], c[i + 2]) - c[i];
+    return *rise > 3.0 * *jitter;
+  };
+  scan.rot_resolved =
+      judge(scan.rms_rot_deg, scan.best_rot_shift, &scan.rise_rot_deg, &scan.jitter_rot_deg);
+  scan.pos_resolved =
+      judge(scan.rms_pos_mm, scan.best_pos_shift, &scan.rise_pos_mm, &scan.jitter_pos_mm);
+  scan.resolved = by_rot ? scan.rot_resolved : scan.pos_resolved;
+  const double rise = by_rot ? scan.rise_rot_deg : scan.rise_pos_mm;
+  const double jitter = by_rot ? scan.jitter_rot_deg : scan.jitter_pos_mm;
+  const char* unit = by_rot ? "deg" : "mm";
+  if (max_shift < 4)
+    scan.verdict = "not resolved: a scan of fewer than +-4 steps cannot tell a valley from noise";
+  else if (std::abs(scan.best_shift) > max_shift - 2)
+    scan.verdict =
+        fmt("not resolved: the minimum (%+d) lies within two steps of the scan's edge; "
+            "the latency may be larger, scan further",
+            scan.best_shift);
+  else if (!scan.resolved)
+    scan.verdict =
+        fmt("not resolved: two steps either side the error rises by only %.3g %s, no "
+            "more than 3x the curve's jitter of %.3g %s (the rig moved too little on "
+            "this axis; the dips are the readings' noise)",
+            rise, unit, jitter, unit);
+  else
+    scan.verdict =
+        fmt("resolved: two steps either side the error rises by %.3g %s, above 3x the "
+            "curve's jitter of %.3g %s",
+            rise, unit, jitter, unit);
   return scan;
 }
 
@@ -450,9 +494,12 @@ std::string scanLines(const LatencyScan& l, const std::string& against) {
   for (const double v : l.rms_rot_deg) out += fmt(" %6.3f", v);
   out += "\n  rms_mm     ";
   for (const double v : l.rms_pos_mm) out += fmt(" %6.2f", v);
-  out += fmt("\n  best shift %+d steps (%+.0f ms) by %s error; by rotation %+d, by position %+d\n",
-             l.best_shift, 1000.0 * l.best_shift * l.period_s, l.criterion.c_str(),
-             l.best_rot_shift, l.best_pos_shift);
+  out +=
+      fmt("\n  best shift %+d steps (%+.0f ms) by %s error; by rotation %+d%s, by position %+d%s\n",
+          l.best_shift, 1000.0 * l.best_shift * l.period_s, l.criterion.c_str(), l.best_rot_shift,
+          l.rot_resolved ? "" : " (not resolved)", l.best_pos_shift,
+          l.pos_resolved ? "" : " (not resolved)");
+  out += "  " + l.verdict + "\n";
   return out;
 }
 

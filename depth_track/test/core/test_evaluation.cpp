@@ -342,6 +342,59 @@ TEST(RunEvaluation, LatencyScanFindsTheDelayOfTheSensors) {
   EXPECT_THROW(scanSensorLatency(truth, RigSensorStreams{}, RigGeometry{}, 2),
                std::invalid_argument);
   EXPECT_THROW(scanSensorLatency(truth, s, RigGeometry{}, -1), std::invalid_argument);
+  // Resolved: the exact readings leave one clean valley at +3 (0 there, the error of 67 ms of
+  // motion two steps either side).
+  EXPECT_TRUE(scan.resolved);
+  EXPECT_TRUE(scan.rot_resolved);
+  EXPECT_NEAR(scan.rise_rot_deg, std::min(scan.rms_rot_deg[7], scan.rms_rot_deg[11]), 1e-9);
+  EXPECT_GT(scan.rise_rot_deg, 0.1);
+  EXPECT_GT(scan.rise_rot_deg, 10.0 * scan.jitter_rot_deg);
+  EXPECT_EQ(scan.verdict.rfind("resolved", 0), 0u) << scan.verdict;
+  // Scanned only +-4: the minimum (+3) lies too near the edge to be sure of, and the scan of +-2
+  // cannot reach it at all.
+  const LatencyScan near_edge = scanSensorLatency(truth, s, RigGeometry{}, 4);
+  EXPECT_EQ(near_edge.best_shift, 3);
+  EXPECT_FALSE(near_edge.resolved);
+  EXPECT_NE(near_edge.verdict.find("edge"), std::string::npos) << near_edge.verdict;
+  const LatencyScan short_scan = scanSensorLatency(truth, s, RigGeometry{}, 2);
+  EXPECT_EQ(short_scan.best_shift, 2);
+  EXPECT_FALSE(short_scan.resolved);
+  EXPECT_NE(short_scan.verdict.find("fewer than"), std::string::npos) << short_scan.verdict;
+}
+
+TEST(RunEvaluation, LatencyScanOfAStillRigClaimsNoLatency) {
+  // The rig stands still; the tracked poses jitter by up to 1 mm / 0.05 deg and the yaw pot's
+  // readings by up to 0.05 deg, each sample on its own. Shifting the stream only picks other
+  // noisy samples: whichever shift the noise favours is no latency.
+  const auto noise = [](double seed) {
+    const double a = std::sin(seed) * 43758.5453;
+    return a - std::floor(a) - 0.5;  // deterministic, uniform in [-0.5, 0.5)
+  };
+  RigSensorStreams s;
+  Trajectory est;
+  for (int i = 0; i <= 300; ++i) {
+    const double t = i / 30.0;
+    s.track.push_back({t + 0.01, 0.2});
+    s.gimbal.push_back({t + 0.01, 0.0, 0.1 * noise(78.233 * i)});
+    const double n = noise(12.9898 * i);
+    est.push_back({t, cameraPoseOnTrack(0.2 + 0.002 * n, 0.0, 0.1 * n * kDegToRad)});
+  }
+  const LatencyScan scan = scanSensorLatency(est, s, RigGeometry{}, 8);
+  EXPECT_EQ(scan.criterion, "position");
+  EXPECT_GT(scan.rms_pos_mm[scan.best_pos_shift + 8], 0.1);
+  // The carriage reading is constant: no valley in position beyond the micrometres the yaw
+  // noise moves the camera on its mount.
+  EXPECT_LT(scan.rise_pos_mm, 0.001);
+  // The yaw readings' noise makes the rotation curve dip somewhere (it is not flat) ...
+  EXPECT_GT(*std::max_element(scan.rms_rot_deg.begin(), scan.rms_rot_deg.end()) -
+                *std::min_element(scan.rms_rot_deg.begin(), scan.rms_rot_deg.end()),
+            0.002);
+  EXPECT_GT(scan.jitter_rot_deg, 0.0);
+  // ... and no dip counts as a latency.
+  EXPECT_FALSE(scan.resolved);
+  EXPECT_FALSE(scan.rot_resolved);
+  EXPECT_FALSE(scan.pos_resolved);
+  EXPECT_NE(scan.verdict.find("moved too little"), std::string::npos) << scan.verdict;
 }
 
 TEST(RunEvaluation, TableUsesGroundTruthWhenThereIsSome) {

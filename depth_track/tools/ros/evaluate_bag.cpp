@@ -239,6 +239,22 @@ void writeLatencyCsv(const std::string& path, const RunEvaluation& run) {
   if (run.sensor_latency) rows(*run.sensor_latency, "ground_truth");
 }
 
+/// One row per scan: its minimum and whether the rig moved enough to resolve it.
+void writeLatencyBestCsv(const std::string& path, const RunEvaluation& run) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error("cannot write " + path);
+  out << "against,criterion,best_shift,best_rot_shift,best_pos_shift,rise_rot_deg,rise_pos_mm,"
+         "jitter_rot_deg,jitter_pos_mm,rot_resolved,pos_resolved,resolved\n";
+  const auto row = [&out](const LatencyScan& l, const char* against) {
+    out << fmt("%s,%s,%d,%d,%d,%.5f,%.4f,%.5f,%.4f,%d,%d,%d\n", against, l.criterion.c_str(),
+               l.best_shift, l.best_rot_shift, l.best_pos_shift, l.rise_rot_deg, l.rise_pos_mm,
+               l.jitter_rot_deg, l.jitter_pos_mm, int(l.rot_resolved), int(l.pos_resolved),
+               int(l.resolved));
+  };
+  if (run.latency) row(*run.latency, "tracked");
+  if (run.sensor_latency) row(*run.sensor_latency, "ground_truth");
+}
+
 /// Occupied voxel centres in the start camera frame (x right, y down, z ahead), float32 triples.
 void writeMapVoxels(const std::string& path, const VoxelMap& map, const Eigen::Isometry3d& T_W_C0) {
   std::ofstream out(path, std::ios::binary);
@@ -658,6 +674,7 @@ int main(int argc, char** argv) {
     writeFramesCsv(out_dir + "/frames.csv", frames, run);
     writeScoresCsv(out_dir + "/scores.csv", run);
     if (run.latency || run.sensor_latency) writeLatencyCsv(out_dir + "/latency.csv", run);
+    if (run.latency || run.sensor_latency) writeLatencyBestCsv(out_dir + "/latency_best.csv", run);
     if (!links.empty()) {
       std::ofstream l(out_dir + "/link_timing.csv");
       l << "link,frames,sender_period_ms,receiver_period_ms,receiver_period_sd_ms,drift_ms_per_s,"

@@ -161,6 +161,15 @@ struct LatencyScan {
   int best_rot_shift = 0, best_pos_shift = 0;
   int best_shift = 0;     ///< the minimiser of `criterion`
   std::string criterion;  ///< "rotation" (the sensors turned > 1 deg) or "position"
+  /// Whether a minimum means a latency: how much the curve rises from it two steps to either
+  /// side (the smaller of the two) against the curve's jitter (robust sigma from its third
+  /// differences). Resolved when the rise exceeds 3x the jitter and the minimum lies at least two
+  /// steps inside the scan; never for scans of fewer than +-4 steps.
+  double rise_rot_deg = 0.0, rise_pos_mm = 0.0;
+  double jitter_rot_deg = 0.0, jitter_pos_mm = 0.0;
+  bool rot_resolved = false, pos_resolved = false;
+  bool resolved = false;  ///< that of `criterion`
+  std::string verdict;    ///< why `best_shift` is, or is not, a latency: one line
 };
 
 /// Shifts the sensor stream by k = -max_shift..max_shift intervals against `trajectory` (the
