@@ -293,6 +293,46 @@ TEST(CellOdometry, ResetStartsAgainAtAGivenPose) {
   }
 }
 
+// A runtime reconfiguration (dynamic_reconfigure in the graph) between two frames: a new search
+// window rebuilds the kept keyframe's association grid (registering through the old one would
+// refuse: a grid serves one window), pose, velocity and keyframe stay; a bad config changes
+// nothing.
+TEST(CellOdometry, SetConfigBetweenFramesKeepsTheKeyframeAndRegridsForANewWindow) {
+  const auto K = l515();
+  TrackerConfig cfg;
+  CellReducer reducer(K, cfg.reducerConfig());
+  CellOdometryConfig oc = cfg.odometryConfig();
+  oc.registration.match.search_radius_cells = 1;
+  CellOdometry odo(K, oc);
+  odo.track(reducer.reduce(renderPlanes(cornerRoom(), K, Eigen::Isometry3d::Identity()), 0.0));
+  FrameStatus s =
+      odo.track(reducer.reduce(renderPlanes(cornerRoom(), K, shifted(0.01, 0, 0)), 0.033));
+  ASSERT_TRUE(s.tracked) << s.failure;
+  const auto key = odo.reference();
+  const Eigen::Isometry3d pose = odo.pose(), velocity = odo.velocity();
+
+  CellOdometryConfig wider = oc;
+  wider.registration.match.search_radius_cells = 2;
+  odo.setConfig(wider);
+  EXPECT_EQ(odo.config().registration.match.search_radius_cells, 2);
+  EXPECT_EQ(odo.reference(), key);
+  EXPECT_EQ(odo.pose().matrix(), pose.matrix());
+  EXPECT_EQ(odo.velocity().matrix(), velocity.matrix());
+  s = odo.track(reducer.reduce(renderPlanes(cornerRoom(), K, shifted(0.02, 0, 0)), 0.066));
+  ASSERT_TRUE(s.tracked) << s.failure;
+  EXPECT_TRUE(s.failure.empty()) << s.failure;
+  EXPECT_EQ(odo.reference(), key);  // 2 cm from the keyframe: still the keyframe
+  EXPECT_NEAR(odo.pose().translation().x(), 0.02, 1e-3);
+
+  CellOdometryConfig bad = wider;
+  bad.registration.match.search_radius_cells = -1;
+  EXPECT_THROW(odo.setConfig(bad), std::invalid_argument);
+  EXPECT_EQ(odo.config().registration.match.search_radius_cells, 2);
+  s = odo.track(reducer.reduce(renderPlanes(cornerRoom(), K, shifted(0.03, 0, 0)), 0.1));
+  ASSERT_TRUE(s.tracked) << s.failure;
+  EXPECT_NEAR(odo.pose().translation().x(), 0.03, 1e-3);
+}
+
 TEST(RunningStats, MeanOverAllQuantilesOverTheWindow) {
   RunningStats s(100);
   EXPECT_EQ(s.median(), 0.0);
