@@ -46,6 +46,7 @@ class FusionNodelet : public nodelet::Nodelet {
     config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
+    ctx_->map.attachFusion();
     diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh), {});
     diag_.add("map", [this](diagnostic_updater::DiagnosticStatusWrapper& d) { mapTask(d); });
     voxels_pub_ = nh.advertise<sensor_msgs::PointCloud2>("map/voxels", 1, true);
@@ -71,8 +72,8 @@ class FusionNodelet : public nodelet::Nodelet {
 
   /// The map's size and how often it goes out; WARN while tracked frames leave it empty.
   void mapTask(diagnostic_updater::DiagnosticStatusWrapper& d) {
-    const std::size_t voxels =
-        ctx_->map.read([](const VoxelMap* map) { return map ? map->occupiedCount() : 0; });
+    const auto map = ctx_->map.map();
+    const std::size_t voxels = map ? map->occupiedCount() : 0;
     const double since = ros::WallTime::now().toSec() - last_publish_wall_s_;
     if (fused_ > 0 && voxels == 0)
       d.summary(diagnostic_msgs::DiagnosticStatus::WARN,
@@ -88,7 +89,7 @@ class FusionNodelet : public nodelet::Nodelet {
 
   void fuseFrame(const Frame& f) {
     const double stamp = f.image->header.stamp.toSec();
-    if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset: not this map's
+    if (!ctx_->map.adopt(f.status->epoch)) return;  // from before a reset: not this map's
     try {
       if (stamp < last_stamp_) {  // time jumped back: the registration resets the map too
         map_changed_ = true;
@@ -106,12 +107,11 @@ class FusionNodelet : public nodelet::Nodelet {
       const Eigen::Isometry3d T_map_C = *X * conv::fromPoseMsg(f.status->camera_pose);
       const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
       const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
-      ctx_->map.ensureMap(K, config_, T_map_C);
-      ctx_->map.write([&](VoxelMap* map) {
-        map->fuse(depth, K, T_map_C);
-        if (config_.flush_every > 0 && map->framesFused() % config_.flush_every == 0) map->flush();
-        return 0;
-      });
+      const auto map = ctx_->map.ensureMap(K, config_, T_map_C);
+      MapFuser& fuser =
+          fuser_.over(map, K, [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); });
+      fuser.fuse(depth, T_map_C);
+      if (config_.flush_every > 0 && map->framesFused() % config_.flush_every == 0) map->flush();
       ++fused_;
       map_changed_ = true;
     } catch (const std::exception& e) {
@@ -131,13 +131,11 @@ class FusionNodelet : public nodelet::Nodelet {
     }
     std::vector<Eigen::Vector3f> centres;
     double voxel = config_.map.voxel_size_m;
-    ctx_->map.read([&](const VoxelMap* map) {
-      if (!map) return 0;
+    if (const auto map = ctx_->map.map()) {
       voxel = map->config().voxel_size_m;
       map->forEachOccupied(
           [&](const VoxelKey& k) { centres.push_back(map->centerOf(k).cast<float>()); });
-      return 0;
-    });
+    }
     ros::Time now = ros::Time::now();
     if (want_cloud) {
       sensor_msgs::PointCloud2 c;
@@ -228,11 +226,10 @@ class FusionNodelet : public nodelet::Nodelet {
   bool onSave(rig_msgs::SaveFile::Request& req, rig_msgs::SaveFile::Response& res) {
     res.path = req.path.empty() ? map_path_ : req.path;
     try {
-      const std::size_t n = ctx_->map.write([&](VoxelMap* map) -> std::size_t {
-        if (!map) throw std::runtime_error("the map is empty (no frame fused yet)");
-        map->save(res.path);
-        return map->occupiedCount();
-      });
+      const auto map = ctx_->map.map();
+      if (!map) throw std::runtime_error("the map is empty (no frame fused yet)");
+      map->save(res.path);
+      const std::size_t n = map->occupiedCount();
       res.success = true;
       res.message = "map of " + std::to_string(n) + " occupied voxels -> " + res.path;
     } catch (const std::exception& e) {
@@ -259,6 +256,7 @@ class FusionNodelet : public nodelet::Nodelet {
   double last_stamp_ = -1.0;
   std::atomic<std::uint64_t> fused_{0}, not_fused_{0}, publications_{0};
   std::atomic<double> last_publish_wall_s_{0.0};
+  MapStage<MapFuser> fuser_;  // the fusion worker's only
   StageDiagnostics diag_;
   std::atomic<bool> map_changed_{false};
   std::unordered_map<std::int64_t, std::pair<std::size_t, int>> tiles_;  // key -> (voxels, id)

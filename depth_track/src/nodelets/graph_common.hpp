@@ -17,7 +17,6 @@
 #include <memory>
 #include <mutex>
 #include <optional>
-#include <shared_mutex>
 #include <string>
 #include <thread>
 #include <type_traits>
@@ -25,6 +24,8 @@
 #include <vector>
 
 #include "depth_track/core/camera.hpp"
+#include "depth_track/core/map/map_fuser.hpp"
+#include "depth_track/core/map/map_raycaster.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/map/mapper_params.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
@@ -177,48 +178,69 @@ class InputWatchdog {
   ros::WallTimer timer_;
 };
 
-/// The map of one graph, shared by the fusion nodelet (the writer), the loop-closure nodelet and
-/// the registration's relocalisation (readers) when they run in one nodelet manager; plus the
-/// map -> odom correction the loop closure decides per frame. In replay mode the two mapping
-/// nodelets hand frames to each other through it in the offline order: the loop closure of frame
-/// k reads the map fused up to frame k-1, and frame k is fused at the pose it decided.
+/// The map of one graph, shared by the fusion nodelet (the writer, through a MapFuser), the
+/// loop-closure nodelet and the registration's relocalisation (readers, through MapRayCaster /
+/// LoopCloser) when they run in one nodelet manager; plus the map -> odom correction the loop
+/// closure decides per frame. The VoxelMap guards itself (one writer or many readers, a waiting
+/// writer first): the session adds no lock around it, only a short one around the pointer, so a
+/// reader keeps the map it took alive while clear() starts a new one. In replay mode the two
+/// mapping nodelets hand frames to each other through it in the offline order: the loop closure
+/// of frame k reads the map fused up to frame k-1, and frame k is fused at the pose it decided.
 class MapSession {
  public:
-  /// Builds the map on the first frame (its intrinsics and start pose place the region).
-  void ensureMap(const PinholeIntrinsics& K, const MapperConfig& config,
-                 const Eigen::Isometry3d& T_map_C0) {
-    std::unique_lock<std::shared_mutex> lock(map_mutex_);
-    if (map_) return;
-    intrinsics_ = K;
-    config_ = config;
-    map_ = std::make_unique<VoxelMap>(config.map);
-    map_->placeRegion(T_map_C0);
+  /// The map, built on the first frame (its intrinsics and start pose place the region).
+  std::shared_ptr<VoxelMap> ensureMap(const PinholeIntrinsics& K, const MapperConfig& config,
+                                      const Eigen::Isometry3d& T_map_C0) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!map_) {
+      auto map = std::make_shared<VoxelMap>(config.map);
+      map->placeRegion(T_map_C0);
+      intrinsics_ = K;
+      map_ = std::move(map);
+    }
+    return map_;
   }
-  /// Exclusive access for the writer: f(map).
-  template <class F>
-  auto write(F&& f) {
-    std::unique_lock<std::shared_mutex> lock(map_mutex_);
-    return f(map_.get());
+  /// The current map, or null before the first fused frame (and after clear()).
+  std::shared_ptr<VoxelMap> map() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return map_;
   }
-  /// Shared access for readers: f(map or nullptr before the first frame).
-  template <class F>
-  auto read(F&& f) const {
-    std::shared_lock<std::shared_mutex> lock(map_mutex_);
-    return f(static_cast<const VoxelMap*>(map_.get()));
-  }
+  /// The intrinsics of the camera whose first frame built the map.
   PinholeIntrinsics intrinsics() const {
-    std::shared_lock<std::shared_mutex> lock(map_mutex_);
+    std::lock_guard<std::mutex> lock(mutex_);
     return intrinsics_;
   }
+  /// In this process, the fusion nodelet writes the map (else relocalisation asks over ROS).
+  void attachFusion() { fusion_attached_ = true; }
+  bool fusionAttached() const { return fusion_attached_; }
   /// Forgets the map and every correction (reset, clear_map, a jump back in time); frames of
-  /// earlier epochs that are still on their way must be dropped (see current()).
+  /// earlier epochs that are still on their way must be dropped (see current()). A reader still
+  /// holding the old map finishes on it.
   void clear(std::uint32_t epoch) {
     epoch_ = epoch;
-    {
-      std::unique_lock<std::shared_mutex> lock(map_mutex_);
-      map_.reset();
-    }
+    forget();
+  }
+  /// For a frame of `epoch`: true when it belongs to the map. A newer epoch (the registration
+  /// reset in another process, where it could not clear this session) clears the map and is
+  /// adopted; an older one (a frame from before a reset, still on its way) gives false.
+  bool adopt(std::uint32_t epoch) {
+    std::uint32_t cur = epoch_;
+    while (epoch > cur)
+      if (epoch_.compare_exchange_weak(cur, epoch)) {
+        forget();
+        return true;
+      }
+    return epoch == epoch_;
+  }
+
+  /// True for frames of the epoch the map belongs to.
+  bool current(std::uint32_t epoch) const { return epoch == epoch_; }
+  std::uint32_t epoch() const { return epoch_; }
+
+ private:
+  void forget() {
     std::lock_guard<std::mutex> lock(mutex_);
+    map_.reset();
     decisions_.clear();
     T_map_odom_ = Eigen::Isometry3d::Identity();
     fused_upto_ = -1.0;
@@ -226,10 +248,7 @@ class MapSession {
     cv_.notify_all();
   }
 
-  /// True for frames of the epoch the map belongs to.
-  bool current(std::uint32_t epoch) const { return epoch == epoch_; }
-  std::uint32_t epoch() const { return epoch_; }
-
+ public:
   // ---- corrections (loop closure -> everyone) ----
   void attachLoopClosure() { loop_attached_ = true; }
   bool loopAttached() const { return loop_attached_; }
@@ -277,19 +296,47 @@ class MapSession {
   }
 
  private:
-  mutable std::shared_mutex map_mutex_;
-  std::unique_ptr<VoxelMap> map_;
-  PinholeIntrinsics intrinsics_;
-  MapperConfig config_;
-
-  mutable std::mutex mutex_;
+  mutable std::mutex mutex_;  // the pointer, the decisions and the fusion progress
   std::condition_variable cv_;
+  std::shared_ptr<VoxelMap> map_;
+  PinholeIntrinsics intrinsics_;
   std::map<double, Eigen::Isometry3d> decisions_;
   Eigen::Isometry3d T_map_odom_ = Eigen::Isometry3d::Identity();
   double fused_upto_ = -1.0;
   std::uint64_t generation_ = 0;
-  std::atomic<bool> loop_attached_{false};
+  std::atomic<bool> loop_attached_{false}, fusion_attached_{false};
   std::atomic<std::uint32_t> epoch_{0};
+};
+
+/// A core map stage (MapFuser, MapRayCaster, LoopCloser) over the session's current map. The
+/// stages hold their map by reference, so this keeps the map alive as long as its stage and
+/// builds a new stage when the session starts a new map or the camera changes. Not thread-safe
+/// (one per thread, like the stages).
+template <class Stage>
+class MapStage {
+ public:
+  /// The stage over `map` for camera K, built with make(map) when either changed.
+  template <class Make>
+  Stage& over(const std::shared_ptr<VoxelMap>& map, const PinholeIntrinsics& K, Make&& make) {
+    if (!stage_ || map != map_ || K.width != K_.width || K.height != K_.height || K.fx != K_.fx ||
+        K.fy != K_.fy || K.cx != K_.cx || K.cy != K_.cy) {
+      stage_.reset();
+      map_ = map;
+      K_ = K;
+      stage_ = make(*map_);
+    }
+    return *stage_;
+  }
+  /// Drops the stage (its config changed): the next over() builds a new one.
+  void reset() {
+    stage_.reset();
+    map_.reset();
+  }
+
+ private:
+  std::shared_ptr<VoxelMap> map_;  // declared before stage_: outlives it
+  PinholeIntrinsics K_;
+  std::unique_ptr<Stage> stage_;
 };
 
 /// Wall times of the front stages per frame stamp, so that the registration's status can report

@@ -1,6 +1,6 @@
 // depth_track/loop_closure: every cl_step-th tracked frame (depth/image + its `status`), registers
 // the frame against the virtual depth ray-cast from the graph's map at the predicted pose (the
-// core's closeLoop and its gates) and, when accepted, updates the correction map -> odom, which
+// core's LoopCloser and its gates) and, when accepted, updates the correction map -> odom, which
 // goes out on tf at a steady rate (~tf_rate), not only when it changes. Publishes the gate's
 // decision and reason on `loop_closure/status` and, while someone watches, the virtual depth at
 // the corrected pose on `loop_closure/virtual_depth`. Needs the fusion nodelet's map (same
@@ -117,9 +117,11 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     if (auto c = reconf_.takePending()) {  // between frames
       std::lock_guard<std::mutex> lock(diag_mutex_);
       config_ = *c;
+      closer_.reset();  // built with the old gates and range
+      caster_.reset();
     }
     const double stamp = f.image->header.stamp.toSec();
-    if (!ctx_->map.current(f.status->epoch)) return;  // from before a reset
+    if (!ctx_->map.adopt(f.status->epoch)) return;  // from before a reset
     Eigen::Isometry3d X = ctx_->map.latestCorrection();
     try {
       if (stamp < last_stamp_) {  // time jumped back: the graph was reset
@@ -139,20 +141,21 @@ class LoopClosureNodelet : public nodelet::Nodelet {
         const Eigen::Isometry3d T_odom_C = conv::fromPoseMsg(f.status->camera_pose);
         const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
         const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
-        std::optional<LoopClosureResult> res = ctx_->map.read([&](const VoxelMap* map) {
-          std::optional<LoopClosureResult> out;
-          if (map && map->occupiedCount() > 0)
-            out = closeLoop(*map, depth, K, config_.range, X * T_odom_C, config_.loop);
-          return out;
-        });
+        const std::shared_ptr<VoxelMap> map = ctx_->map.map();
+        std::optional<LoopClosureResult> res;
+        if (map && map->occupiedCount() > 0)
+          res = closer_
+                    .over(map, K,
+                          [&](const VoxelMap& m) {
+                            return std::make_unique<LoopCloser>(m, K, config_.range, config_.loop);
+                          })
+                    .attempt(depth, stamp, T_odom_C, X);
         if (res) {
           {
             std::lock_guard<std::mutex> lock(diag_mutex_);
             ++attempts_;
-            if (res->accepted) {
-              ++accepted_;
-              X = res->T_W_C * T_odom_C.inverse();
-            }
+            if (res->accepted) ++accepted_;
+            X = res->correction.T_M_O;  // the one it started from when rejected
             rejected_in_a_row_ = res->accepted ? 0 : rejected_in_a_row_ + 1;
             last_accepted_ = res->accepted;
             last_reason_ = res->reason;
@@ -161,9 +164,13 @@ class LoopClosureNodelet : public nodelet::Nodelet {
           }
           publishStatus(f, *res);
           if (virtual_pub_.getNumSubscribers() > 0) {
-            const DepthImage virt = ctx_->map.read([&](const VoxelMap* map) {
-              return map ? map->raycast(K, X * T_odom_C, config_.range) : DepthImage();
-            });
+            const DepthImage virt =
+                caster_
+                    .over(map, K,
+                          [&](const VoxelMap& m) {
+                            return std::make_unique<MapRayCaster>(m, K, config_.range);
+                          })
+                    .cast(X * T_odom_C);
             if (!virt.empty()) {
               std_msgs::Header h = f.image->header;
               virtual_pub_.publish(conv::depthToMsg(virt, h));
@@ -212,6 +219,8 @@ class LoopClosureNodelet : public nodelet::Nodelet {
   bool last_accepted_ = false;
   std::string last_reason_;
   double last_correction_m_ = 0.0, last_correction_deg_ = 0.0;
+  MapStage<LoopCloser> closer_;    // the loop-closure worker's only
+  MapStage<MapRayCaster> caster_;  // the virtual depth it publishes (full resolution)
   StageDiagnostics diag_;
   RuntimeParams<MapperConfig> reconf_;
   ros::Publisher status_pub_;

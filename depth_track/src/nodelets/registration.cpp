@@ -325,7 +325,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
         if (relocalise_ && lost_frames_ % relocalise_every_ == 0) {
           const double now_stamp = prev_stamp_;
           prev_stamp_ = prev_stamp;  // the frame before this one must be in the map
-          tryRelocalise(h, &st, &s);
+          tryRelocalise(h, &st);
           prev_stamp_ = now_stamp;
         }
       } else {
@@ -350,21 +350,12 @@ class RegistrationNodelet : public nodelet::Nodelet {
   }
 
   /// Registers the lost frame onto the map ray-cast at the held pose (wider search).
-  void tryRelocalise(const std_msgs::Header& h, FrameStatus* st, rig_msgs::TrackingStatus* s) {
-    // Replay: the offline order, the map holds every frame before this one (fusion runs behind).
-    if (mode_ == Mode::kReplay && prev_stamp_ > 0.0 && !ctx_->map.waitFused(prev_stamp_, 10.0))
-      NODELET_WARN(
-          "registration: the map did not catch up with frame %.3f within 10 s; "
-          "relocalising against what it holds",
-          prev_stamp_);
-    const Eigen::Isometry3d T_map_odom = ctx_->map.latestCorrection();
+  void tryRelocalise(const std_msgs::Header& h, FrameStatus* st) {
     const Eigen::Isometry3d T_odom_C = odometry_->pose();
-    DepthImage virt = ctx_->map.read([&](const VoxelMap* map) {
-      if (!map || map->occupiedCount() == 0) return DepthImage();
-      return map->raycast(K_, T_map_odom * T_odom_C, mapper_config_.range);
-    });
-    if (virt.empty()) {
-      s->failure = "no map to relocalise against (fusion not running in this manager, or empty)";
+    std::string why;
+    const DepthImage virt = castHere(T_odom_C, &why);
+    if (virt.empty()) {  // the status shows it (publishFrame takes st's failure)
+      st->failure += "; relocalisation: no map to relocalise against: " + why;
       return;
     }
     const auto ref = relocaliser_->reduce(virt, h.stamp.toSec(), h.frame_id);
@@ -383,6 +374,30 @@ class RegistrationNodelet : public nodelet::Nodelet {
       st->failure += "; relocalisation: " + rr.reason;
     }
     st->state = odometry_->state();
+  }
+
+  /// The map of the fusion nodelet in this manager, cast at the held pose.
+  DepthImage castHere(const Eigen::Isometry3d& T_odom_C, std::string* why) {
+    // Replay: the offline order, the map holds every frame before this one (fusion runs behind).
+    if (mode_ == Mode::kReplay && prev_stamp_ > 0.0 &&
+        !ctx_->map.waitFused(prev_stamp_, kReplayMapWait_s))
+      NODELET_WARN(
+          "registration: the map did not catch up with frame %.3f within %.0f s; "
+          "relocalising against what it holds",
+          prev_stamp_, kReplayMapWait_s);
+    const Eigen::Isometry3d T_map_odom = ctx_->map.latestCorrection();
+    const std::shared_ptr<VoxelMap> map = ctx_->map.map();
+    if (!map || map->occupiedCount() == 0) {
+      *why = ctx_->map.fusionAttached() ? "the map is empty"
+                                        : "the fusion nodelet does not run in this manager";
+      return DepthImage();
+    }
+    return reloc_caster_
+        .over(map, K_,
+              [&](const VoxelMap& m) {
+                return std::make_unique<MapRayCaster>(m, K_, mapper_config_.range);
+              })
+        .cast(T_map_odom * T_odom_C);
   }
 
   void publishFrame(const std_msgs::Header& h, const FrameStatus& st, double ms_register,
@@ -547,6 +562,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
          lost_rot_var_ = 0.1;
   bool publish_tf_ = true, relocalise_ = true;
   int path_length_ = 2000, relocalise_every_ = 3;
+  /// Replay: how long a relocalisation waits for the map to hold every earlier frame.
+  static constexpr double kReplayMapWait_s = 10.0;
   TrackerConfig config_;
   MapperConfig mapper_config_;
   std::shared_ptr<GraphContext> ctx_;
@@ -554,6 +571,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   std::mutex state_mutex_;  // odometry, path, trajectory (worker thread vs services)
   std::unique_ptr<CellOdometry> odometry_;
   std::unique_ptr<CellReducer> relocaliser_;
+  MapStage<MapRayCaster> reloc_caster_;  // the virtual view of a relocalisation (same manager)
   PinholeIntrinsics K_;
   Eigen::Isometry3d T_base_C_ = Eigen::Isometry3d::Identity();
   bool have_mount_ = false;

@@ -1,6 +1,7 @@
 // The graph's frame hand-over without a roscore: replay keeps every frame in order, live keeps
 // the freshest and counts what it skipped; stamp pairing; the stamp guard's verdicts; the shared
-// map session's replay order (a correction is waited for, the map catches up).
+// map session's replay order (a correction is waited for, the map catches up), and its map's
+// lifetime across a reset (a reader finishes on the map it took; stages follow the new one).
 #include <gtest/gtest.h>
 #include <ros/time.h>
 
@@ -107,4 +108,52 @@ TEST(MapSession, ReplayOrderBetweenLoopClosureAndFusion) {
   lc.join();
   EXPECT_TRUE(ok);
   EXPECT_FALSE(s.waitFused(3.0, 0.05)) << "times out when the map never gets there";
+}
+
+TEST(MapSession, ReadersKeepTheirMapAcrossAResetAndStagesFollowTheNewOne) {
+  // 64x48 px at f = 200 px: a 5 mm pixel footprint at 1 m, under the 1 cm voxel, so a wall at
+  // 1 m fills every pixel of the cast.
+  const PinholeIntrinsics K = PinholeIntrinsics::isotropic(64, 48, 200.0);
+  MapperConfig c;
+  c.map.bounded = false;
+  c.map.voxel_size_m = 0.01;
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  auto makeFuser = [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); };
+  auto makeCaster = [&](const VoxelMap& m) {
+    return std::make_unique<MapRayCaster>(m, K, DepthRange{0.5, 4.0});
+  };
+  MapSession s;
+  EXPECT_FALSE(s.map());
+  const std::shared_ptr<VoxelMap> m0 = s.ensureMap(K, c, I);
+  EXPECT_EQ(s.ensureMap(K, c, I), m0) << "the first frame builds the map, later ones share it";
+  MapStage<MapFuser> fuser;
+  MapStage<MapRayCaster> caster;
+  fuser.over(m0, K, makeFuser).fuse(DepthImage(64, 48, 1.005f), I);  // a wall at 1 m
+  const DepthImage v0 = caster.over(s.map(), K, makeCaster).cast(I);
+  ASSERT_EQ(v0.countValid(), 64u * 48u);
+  // The first occupied voxel along the axis spans [1.00, 1.01) m: its centre, within a voxel.
+  EXPECT_NEAR(v0.at(32, 24), 1.005, 0.01);
+
+  const std::shared_ptr<VoxelMap> held = s.map();  // a reader mid-cast
+  s.clear(1);
+  EXPECT_FALSE(s.map());
+  EXPECT_EQ(held->occupiedCount(), m0->occupiedCount());
+  EXPECT_EQ(caster.over(held, K, makeCaster).cast(I).countValid(), 64u * 48u)
+      << "a reader finishes on the map it took";
+  const std::shared_ptr<VoxelMap> m1 = s.ensureMap(K, c, I);
+  EXPECT_NE(m1, m0);
+  EXPECT_EQ(caster.over(m1, K, makeCaster).cast(I).countValid(), 0u)
+      << "the stage follows the session's new, empty map";
+  fuser.over(m1, K, makeFuser).fuse(DepthImage(64, 48, 2.005f), I);  // the writer too
+  EXPECT_NEAR(caster.over(s.map(), K, makeCaster).cast(I).at(32, 24), 2.005, 0.01);
+
+  // Epochs: frames of the map's epoch belong to it; an older one is dropped; a newer one (a
+  // registration that reset in another process) clears the map and is adopted.
+  EXPECT_TRUE(s.adopt(1));
+  EXPECT_FALSE(s.adopt(0));
+  EXPECT_TRUE(s.map());
+  EXPECT_TRUE(s.adopt(3));
+  EXPECT_EQ(s.epoch(), 3u);
+  EXPECT_FALSE(s.map()) << "a newer epoch starts a new map";
+  EXPECT_FALSE(s.adopt(2));
 }
