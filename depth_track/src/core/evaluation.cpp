@@ -354,8 +354,12 @@ LatencyScan scanSensorLatency(const Trajectory& trajectory, const RigSensorStrea
   // (zero on any smooth parabola- or V-shaped curve; 20 sigma^2 in variance for independent
   // noise), robustly through their median: sensor noise that picks other readings at each shift
   // makes dips anywhere, motion makes one clear valley.
-  const auto judge = [max_shift](const std::vector<double>& c, int best, double* rise,
-                                 double* jitter) {
+  // Besides, a rise must exceed a floor far below any rig sensor's resolution (pot and encoder
+  // steps are tenths of a degree / millimetres) but above rounding: an almost exact curve (a
+  // truck's heading integrated from the same steering at every shift) has no jitter at all.
+  constexpr double kMinRiseDeg = 1e-3, kMinRiseMm = 1e-2;
+  const auto judge = [max_shift](const std::vector<double>& c, int best, double min_rise,
+                                 double* rise, double* jitter) {
     const int i = best + max_shift;
     if (max_shift < 4 || std::abs(best) > max_shift - 2) return false;
     std::vector<double> d3;
@@ -364,12 +368,12 @@ LatencyScan scanSensorLatency(const Trajectory& trajectory, const RigSensorStrea
     std::nth_element(d3.begin(), d3.begin() + d3.size() / 2, d3.end());
     *jitter = d3[d3.size() / 2] / 0.6745 / std::sqrt(20.0);
     *rise = std::min(c[i - 2], c[i + 2]) - c[i];
-    return *rise > 3.0 * *jitter;
+    return *rise > 3.0 * *jitter && *rise > min_rise;
   };
-  scan.rot_resolved =
-      judge(scan.rms_rot_deg, scan.best_rot_shift, &scan.rise_rot_deg, &scan.jitter_rot_deg);
-  scan.pos_resolved =
-      judge(scan.rms_pos_mm, scan.best_pos_shift, &scan.rise_pos_mm, &scan.jitter_pos_mm);
+  scan.rot_resolved = judge(scan.rms_rot_deg, scan.best_rot_shift, kMinRiseDeg, &scan.rise_rot_deg,
+                            &scan.jitter_rot_deg);
+  scan.pos_resolved = judge(scan.rms_pos_mm, scan.best_pos_shift, kMinRiseMm, &scan.rise_pos_mm,
+                            &scan.jitter_pos_mm);
   scan.resolved = by_rot ? scan.rot_resolved : scan.pos_resolved;
   const double rise = by_rot ? scan.rise_rot_deg : scan.rise_pos_mm;
   const double jitter = by_rot ? scan.jitter_rot_deg : scan.jitter_pos_mm;
@@ -383,10 +387,10 @@ LatencyScan scanSensorLatency(const Trajectory& trajectory, const RigSensorStrea
             scan.best_shift);
   else if (!scan.resolved)
     scan.verdict =
-        fmt("not resolved: two steps either side the error rises by only %.3g %s, no "
-            "more than 3x the curve's jitter of %.3g %s (the rig moved too little on "
+        fmt("not resolved: two steps either side the error rises by only %.3g %s (needs "
+            "more than 3x the curve's jitter of %.3g %s and %g %s: the rig moved too little on "
             "this axis; the dips are the readings' noise)",
-            rise, unit, jitter, unit);
+            rise, unit, jitter, unit, by_rot ? kMinRiseDeg : kMinRiseMm, unit);
   else
     scan.verdict =
         fmt("resolved: two steps either side the error rises by %.3g %s, above 3x the "
