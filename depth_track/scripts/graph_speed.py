@@ -12,6 +12,9 @@ are dropped (or --max-rate). Per run it reports:
              clock, which rosbag publishes every 1 ms here) median / p95, and the tool's own wall
              measurement from a frame's camera_info arriving to its odom -> base_link on /tf
   rss        peak resident memory of the manager (VmHWM) at the end of the run
+  by stage   live-mode skips per nodelet from /diagnostics ("frames dropped": dropped total):
+             ingest, pca_reduce, registration (the tracking chain, counted in `dropped`) and
+             fusion, loop_closure (frames the map did not get; not in `dropped`)
 A measurement, not a test: the machine's load average is printed with every run, since a shared
 machine shifts every number. Usage:
 
@@ -33,6 +36,7 @@ import time
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 CAMERA_INFO = "/camera/camera_info"
 CLOCK_HZ = 1000
+STAGES = ("ingest", "pca_reduce", "registration", "fusion", "loop_closure")
 
 
 def free_port():
@@ -95,6 +99,7 @@ class Collector:
         import rospy
         from rig_msgs.msg import TrackingStatus
         from sensor_msgs.msg import CameraInfo
+        from diagnostic_msgs.msg import DiagnosticArray
         from tf2_msgs.msg import TFMessage
 
         self.lock = threading.Lock()
@@ -102,12 +107,14 @@ class Collector:
         rospy.Subscriber("/status", TrackingStatus, self.on_status, queue_size=1000)
         rospy.Subscriber("/tf", TFMessage, self.on_tf, queue_size=1000)
         rospy.Subscriber(CAMERA_INFO, CameraInfo, self.on_info, queue_size=1000)
+        rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
 
     def reset(self):
         with getattr(self, "lock", threading.Lock()):
             self.statuses = {}
             self.info_wall = {}
             self.tf_wall = {}
+            self.stage_dropped = {}
             self.last_wall = time.time()
 
     def on_status(self, s):
@@ -123,6 +130,16 @@ class Collector:
             for t in m.transforms:
                 if t.child_frame_id == "base_link" and t.header.frame_id == "odom":
                     self.tf_wall.setdefault(t.header.stamp.to_nsec(), now)
+
+    def on_diagnostics(self, m):
+        with self.lock:
+            for s in m.status:
+                if not s.name.endswith(": frames dropped"):
+                    continue
+                for kv in s.values:
+                    if kv.key == "dropped total":
+                        node = s.name[:-len(": frames dropped")].split("/")[-1]
+                        self.stage_dropped[node] = int(kv.value)
 
     def on_info(self, m):
         now = time.time()
@@ -141,7 +158,7 @@ def bag_frames(bag):
     raise RuntimeError("%s has no depth topic" % bag)
 
 
-def run_once(bag, rate, frames, duration, collector, log):
+def run_once(bag, rate, frames, duration, collector, log, config=""):
     """One playback of `bag` at `rate` through a freshly started graph."""
     import rospy
 
@@ -150,7 +167,8 @@ def run_once(bag, rate, frames, duration, collector, log):
     launch = subprocess.Popen(
         ["roslaunch", os.path.join(ROOT, "launch", "tracking.launch"), "mode:=live",
          "loop_closure:=true", "depth_scale:=0.00025", "manager:=" + manager,
-         "trajectory_path:=/dev/null", "map_path:=/dev/null"],
+         "trajectory_path:=/dev/null", "map_path:=/dev/null"]
+        + (["config:=" + os.path.abspath(config)] if config else []),
         stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         pid = find_manager(manager)
@@ -170,6 +188,7 @@ def run_once(bag, rate, frames, duration, collector, log):
                                    "-d", "1", "-r", str(rate), bag],
                                   stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         time.sleep(1.0 + duration / rate)
+        # Two seconds without a status, which also lets /diagnostics (1 s period) report the end.
         while time.time() - collector.last_wall < 2.0:
             time.sleep(0.1)
         cpu1, wall1 = proc_cpu_s(pid), collector.last_wall
@@ -186,6 +205,7 @@ def run_once(bag, rate, frames, duration, collector, log):
             launch.wait()
     with collector.lock:
         st = dict(collector.statuses)
+        by_stage = dict(collector.stage_dropped)
         tf_lat = [1e3 * (collector.tf_wall[k] - collector.info_wall[k])
                   for k in collector.tf_wall if k in collector.info_wall]
     skipped = max([v[1] for v in st.values()], default=0)
@@ -200,6 +220,7 @@ def run_once(bag, rate, frames, duration, collector, log):
         "lat_p95": percentile(lat, 0.95),
         "tf_med": statistics.median(tf_lat) if tf_lat else float("nan"),
         "tf_p95": percentile(tf_lat, 0.95), "rss_mb": hwm, "load": load0 + " -> " + load1,
+        "by_stage": by_stage,
     }
 
 
@@ -210,6 +231,8 @@ def main():
     ap.add_argument("--max-rate", type=int, default=6)
     ap.add_argument("--rates", default="", help="fixed list of rates instead of rising ones")
     ap.add_argument("--out", default="", help="also write the table here")
+    ap.add_argument("--config", default="",
+                    help="parameter file instead of config/tracking.yaml (A/B of a setting)")
     a = ap.parse_args()
 
     bags = list(a.bags)
@@ -251,7 +274,7 @@ def main():
                 continue
             rates = [int(r) for r in a.rates.split(",")] if a.rates else range(1, a.max_rate + 1)
             for rate in rates:
-                r = run_once(bag, rate, frames, duration, collector, log)
+                r = run_once(bag, rate, frames, duration, collector, log, a.config)
                 r["bag"] = os.path.basename(bag)
                 rows.append(r)
                 print("%-12s x%d: %d/%d statuses, %d tracked, dropped %d (skipped %d, missing %d), "
@@ -260,6 +283,9 @@ def main():
                                    r["dropped"], r["skipped"], r["missing"], r["cpu"],
                                    r["lat_med"], r["lat_p95"], r["tf_med"], r["tf_p95"],
                                    r["rss_mb"], r["load"]), flush=True)
+                print("%-12s     skipped by stage: %s" % (r["bag"], ", ".join(
+                    "%s %d" % (n, r["by_stage"][n]) for n in STAGES if n in r["by_stage"])),
+                      flush=True)
                 if not a.rates and r["dropped"] > 0:
                     break
     finally:

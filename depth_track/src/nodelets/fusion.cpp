@@ -42,6 +42,10 @@ class FusionNodelet : public nodelet::Nodelet {
     odom_frame_ = r.getString("odom_frame");
     publish_period_s_ = r.getDouble("publish_period");
     const int sync_queue = r.getInt("sync_queue");
+    FrameQueueOptions queue_options;
+    // Priorities only shape who waits in live mode; replay orders the stages by itself.
+    const int worker_nice = r.getInt("worker_nice");
+    if (mode_ == Mode::kLive) queue_options.worker_nice = worker_nice;
     map_path_ = r.getString("map_path");
     config_ = readMapperTable(r, nh);
     r.finish();
@@ -53,7 +57,8 @@ class FusionNodelet : public nodelet::Nodelet {
     markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>("map/markers", 10, true);
     save_srv_ = pnh.advertiseService("save_map", &FusionNodelet::onSave, this);
     clear_srv_ = pnh.advertiseService("clear_map", &FusionNodelet::onClear, this);
-    input_.start(nh, mode_, sync_queue, [this](const Frame& f) { process(f); });
+    input_.start(
+        nh, mode_, sync_queue, [this](const Frame& f) { process(f); }, queue_options);
     publish_timer_ = nh.createWallTimer(ros::WallDuration(std::max(publish_period_s_, 0.05)),
                                         [this](const ros::WallTimerEvent&) { publishMap(); });
     NODELET_INFO("fusion: %s, voxel %.4f m, region %s, carving %s",

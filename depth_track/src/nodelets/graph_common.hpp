@@ -7,9 +7,13 @@
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 #include <Eigen/Geometry>
 #include <atomic>
+#include <cerrno>
 #include <condition_variable>
 #include <deque>
 #include <functional>
@@ -37,16 +41,32 @@ namespace graph {
 enum class Mode { kLive, kReplay };
 inline Mode parseMode(const std::string& s) { return s == "replay" ? Mode::kReplay : Mode::kLive; }
 
+/// How a FrameQueue's live mode waits and how its worker shares the cores.
+struct FrameQueueOptions {
+  /// Live mode: items that may wait while the worker is busy; a newer item beyond them drops
+  /// the oldest waiting one (counted as skipped). 1 keeps only the freshest; 2 absorbs one
+  /// frame that overruns its period (or two frames delivered at once) without a skip, and
+  /// still never lets a backlog grow.
+  std::size_t live_depth = 1;
+  /// Nice value of the worker thread (0 = the process's; higher yields the cores to threads of
+  /// lower values, e.g. the map's work to the tracking chain). Linux nice is per thread.
+  int worker_nice = 0;
+};
+
 /// Hands messages from a subscriber callback to one worker thread. Replay: every item, in
 /// order (up to `capacity`; beyond it the oldest is dropped and counted, which a replay at a
-/// sustainable rate never reaches). Live: only the freshest item waits; an item replaced before
-/// the worker took it is counted as skipped. The worker runs `process`, which must not throw
-/// (the nodelets catch everything inside it).
+/// sustainable rate never reaches). Live: at most `live_depth` items wait, oldest first; an item
+/// pushed out before the worker took it is counted as skipped. The worker runs `process`, which
+/// must not throw (the nodelets catch everything inside it).
 template <class T>
 class FrameQueue {
  public:
-  FrameQueue(Mode mode, std::size_t capacity, std::function<void(const T&)> process)
-      : mode_(mode), capacity_(capacity), process_(std::move(process)) {
+  FrameQueue(Mode mode, std::size_t capacity, std::function<void(const T&)> process,
+             FrameQueueOptions options = {})
+      : mode_(mode),
+        capacity_(mode == Mode::kLive ? std::max<std::size_t>(options.live_depth, 1) : capacity),
+        nice_(options.worker_nice),
+        process_(std::move(process)) {
     worker_ = std::thread([this] { run(); });
   }
   ~FrameQueue() { stop(); }
@@ -56,14 +76,9 @@ class FrameQueue {
   void push(const T& item) {
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      if (mode_ == Mode::kLive) {
-        if (!items_.empty()) {
-          items_.clear();
-          ++skipped_;
-        }
-      } else if (items_.size() >= capacity_) {
+      if (items_.size() >= capacity_) {
         items_.pop_front();
-        ++overflowed_;
+        ++(mode_ == Mode::kLive ? skipped_ : overflowed_);
       }
       items_.push_back(item);
     }
@@ -90,9 +105,21 @@ class FrameQueue {
     std::lock_guard<std::mutex> lock(mutex_);
     return items_.size();
   }
+  /// The worker's nice value as the kernel reports it (tests; -100 before the worker started).
+  int workerNice() const { return worker_nice_seen_; }
 
  private:
   void run() {
+    if (nice_ != 0) {
+      // setpriority on a thread id changes that thread alone (Linux); failing to lower the
+      // priority only costs speed, so it is reported and the worker runs on.
+      const auto tid = static_cast<id_t>(::syscall(SYS_gettid));
+      if (::setpriority(PRIO_PROCESS, tid, nice_) != 0)
+        ROS_WARN("frame queue: could not set the worker's nice value to %d (errno %d)", nice_,
+                 errno);
+    }
+    errno = 0;
+    worker_nice_seen_ = ::getpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)));
     for (;;) {
       T item;
       {
@@ -107,7 +134,9 @@ class FrameQueue {
   }
 
   Mode mode_;
-  std::size_t capacity_;
+  std::size_t capacity_;  ///< replay: the overflow bound; live: live_depth
+  int nice_;
+  std::atomic<int> worker_nice_seen_{-100};
   std::function<void(const T&)> process_;
   mutable std::mutex mutex_;
   std::condition_variable cv_;
@@ -461,9 +490,9 @@ struct TrackedFrame {
 class TrackedFrameInput {
  public:
   void start(ros::NodeHandle& nh, Mode mode, std::size_t sync_queue,
-             std::function<void(const TrackedFrame&)> process) {
+             std::function<void(const TrackedFrame&)> process, FrameQueueOptions options = {}) {
     pairs_ = std::make_unique<StampPairer<DepthPair, rig_msgs::TrackingStatusConstPtr>>(sync_queue);
-    queue_ = std::make_unique<FrameQueue<TrackedFrame>>(mode, 100000, std::move(process));
+    queue_ = std::make_unique<FrameQueue<TrackedFrame>>(mode, 100000, std::move(process), options);
     image_transport::ImageTransport it(nh);
     depth_sub_ = it.subscribeCamera("depth/image", 50, &TrackedFrameInput::onDepth, this);
     status_sub_ = nh.subscribe("status", 100, &TrackedFrameInput::onStatus, this);

@@ -54,6 +54,8 @@ class IngestNodelet : public nodelet::Nodelet {
     const double timeout_s = r.getDouble("input_timeout");
     const int threads = r.getInt("threads");
     const int replay_queue = r.getInt("replay_queue");
+    FrameQueueOptions queue_options;
+    queue_options.live_depth = r.getInt("live_queue");
     const std::string transport = r.getString("image_transport");
     const std::string correction_file = r.getString("depth_correction");
     if (!correction_file.empty()) {
@@ -86,8 +88,8 @@ class IngestNodelet : public nodelet::Nodelet {
     depth_pub_ = it.advertiseCamera("depth/image", 5);
     colour_pub_ = it.advertise("depth/false_colour", 1);
     status_pub_ = nh.advertise<rig_msgs::TrackingStatus>("status", 50);
-    queue_ = std::make_unique<FrameQueue<Frame>>(mode, replay_queue,
-                                                 [this](const Frame& f) { process(f); });
+    queue_ = std::make_unique<FrameQueue<Frame>>(
+        mode, replay_queue, [this](const Frame& f) { process(f); }, queue_options);
     // Resolved first: this image_transport appends "/compressedDepth" to the name as given, and
     // the remapping of image_rect would not reach the transport's subtopic.
     image_sub_ =

@@ -42,6 +42,10 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     odom_frame_ = r.getString("odom_frame");
     const double tf_rate = r.getDouble("tf_rate");
     const int sync_queue = r.getInt("sync_queue");
+    FrameQueueOptions queue_options;
+    // Priorities only shape who waits in live mode; replay orders the stages by itself.
+    const int worker_nice = r.getInt("worker_nice");
+    if (mode_ == Mode::kLive) queue_options.worker_nice = worker_nice;
     wait_timeout_s_ = r.getDouble("wait_timeout");
     config_ = readMapperTable(r, nh);
     r.finish();
@@ -62,7 +66,8 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     image_transport::ImageTransport it(nh);
     virtual_pub_ = it.advertise("loop_closure/virtual_depth", 1);
     if (config_.loop.enabled)
-      input_.start(nh, mode_, sync_queue, [this](const Frame& f) { process(f); });
+      input_.start(
+          nh, mode_, sync_queue, [this](const Frame& f) { process(f); }, queue_options);
     tf_timer_ = nh.createTimer(ros::Duration(1.0 / tf_rate), [this](const ros::TimerEvent&) {
       const ros::Time now = ros::Time::now();
       if (now <= last_tf_stamp_ && now + ros::Duration(1.0) > last_tf_stamp_) return;  // no news

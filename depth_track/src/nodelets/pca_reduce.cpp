@@ -39,6 +39,8 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     const Mode mode = parseMode(r.getString("mode"));
     const int threads = r.getInt("threads");
     fm_terms_ = r.getBool("fm_terms");
+    FrameQueueOptions queue_options;
+    queue_options.live_depth = r.getInt("live_queue");
     config_ = r.table<TrackerConfig>(
         ros::NodeHandle(nh, "tracker"), trackerParams(), TrackerConfig{},
         [](const TrackerConfig& c) {
@@ -52,8 +54,8 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     stats_pub_ = nh.advertise<rig_msgs::ReductionStats>("cells/stats", 5);
     normals_pub_ = nh.advertise<visualization_msgs::Marker>("cells/normals", 1);
     status_pub_ = nh.advertise<rig_msgs::TrackingStatus>("status", 50);
-    queue_ =
-        std::make_unique<FrameQueue<Frame>>(mode, 100000, [this](const Frame& f) { process(f); });
+    queue_ = std::make_unique<FrameQueue<Frame>>(
+        mode, 100000, [this](const Frame& f) { process(f); }, queue_options);
     image_transport::ImageTransport it(nh);
     sub_ = it.subscribeCamera("depth/image", 50, &PcaReduceNodelet::onFrame, this);
   }

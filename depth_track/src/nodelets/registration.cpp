@@ -66,6 +66,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     relocalise_ = r.getBool("relocalise");
     relocalise_every_ = r.getInt("relocalise_every");
     trajectory_path_ = r.getString("trajectory_path");
+    FrameQueueOptions queue_options;
+    queue_options.live_depth = r.getInt("live_queue");
     const std::string mount_text = r.getString("camera_mount");
     const std::string mount_frame = r.getString("camera_frame");
     std::optional<Eigen::Isometry3d> mount;
@@ -132,7 +134,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     pause_srv_ = pnh.advertiseService("pause", &RegistrationNodelet::onPause, this);
     resume_srv_ = pnh.advertiseService("resume", &RegistrationNodelet::onResume, this);
     queue_ = std::make_unique<FrameQueue<sensor_msgs::PointCloud2ConstPtr>>(
-        mode, 100000, [this](const sensor_msgs::PointCloud2ConstPtr& m) { process(m); });
+        mode, 100000, [this](const sensor_msgs::PointCloud2ConstPtr& m) { process(m); },
+        queue_options);
     info_sub_ = nh.subscribe("depth/camera_info", 5, &RegistrationNodelet::onInfo, this);
     cells_sub_ = nh.subscribe("cells", 50, &RegistrationNodelet::onCells, this);
     NODELET_INFO("registration: %s, %s -> %s, method %s%s",

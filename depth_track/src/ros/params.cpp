@@ -48,6 +48,15 @@ std::vector<NodeParamSpec> makeParams() {
   std::vector<NodeParamSpec> p;
   const char* mode_help =
       "replay: every frame in order, deterministic; live: the freshest frame, skips counted";
+  const char* live_queue_help =
+      "live: frames that may wait while the stage is busy (oldest first); a newer one beyond them "
+      "skips the oldest waiting (counted); 1 = only the freshest; 2 absorbs one frame that "
+      "overruns its period, or two delivered at once";
+  const char* nice_help =
+      "live: nice value of the worker thread (0..19; 0 = as the process; replay ignores it): above "
+      "0 the map's work "
+      "yields the cores to the tracking chain, so that a map insert or a loop-closure ray cast "
+      "does not delay a frame's pose";
   // ---- ingest ----
   p.push_back(text("ingest", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(num("ingest", "depth_scale", "m",
@@ -75,6 +84,7 @@ std::vector<NodeParamSpec> makeParams() {
                       "replay: frames held while the graph is behind (then the oldest is dropped "
                       "with an error)",
                       2000, 1, 100000));
+  p.push_back(integer("ingest", "live_queue", "frames", live_queue_help, 2, 1, 10));
   // ---- pca_reduce ----
   p.push_back(text("pca_reduce", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(integer("pca_reduce", "threads", "", "workers of the PCA reduction", 1, 1, 64));
@@ -83,6 +93,7 @@ std::vector<NodeParamSpec> makeParams() {
                    "them, so that dynamic_reconfigure can switch the registration to cell_search; "
                    "off keeps the reduction identical to the offline tracker's",
                    false));
+  p.push_back(integer("pca_reduce", "live_queue", "frames", live_queue_help, 2, 1, 10));
   // ---- registration ----
   p.push_back(text("registration", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(text("registration", "odom_frame", "frame of the odometry (REP 105)", "odom"));
@@ -120,6 +131,7 @@ std::vector<NodeParamSpec> makeParams() {
                    "default file of save_trajectory (TUM format; map poses beside it as "
                    "<name>_map.txt)",
                    "/tmp/depth_track_trajectory.txt"));
+  p.push_back(integer("registration", "live_queue", "frames", live_queue_help, 2, 1, 10));
   // ---- fusion ----
   p.push_back(text("fusion", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(text("fusion", "map_frame", "frame of the map", "map"));
@@ -130,6 +142,7 @@ std::vector<NodeParamSpec> makeParams() {
                       "depth frames kept while their pose is awaited", 90, 1, 10000));
   p.push_back(text("fusion", "map_path", "default file of save_map (OctoMap .bt)",
                    "/tmp/depth_track_map.bt"));
+  p.push_back(integer("fusion", "worker_nice", "", nice_help, 10, 0, 19));
   // ---- loop_closure ----
   p.push_back(text("loop_closure", "mode", mode_help, "live", {"live", "replay"}));
   p.push_back(text("loop_closure", "map_frame", "frame of the map", "map"));
@@ -141,6 +154,7 @@ std::vector<NodeParamSpec> makeParams() {
   p.push_back(num("loop_closure", "wait_timeout", "s",
                   "replay: wait this long for the map to catch up before an attempt", 10.0, 0.0,
                   3600.0));
+  p.push_back(integer("loop_closure", "worker_nice", "", nice_help, 10, 0, 19));
   // ---- diagnostics: thresholds of every nodelet's /diagnostics (graph_diagnostics.hpp) ----
   p.push_back(
       num("diagnostics", "period", "s", "wall time between /diagnostics updates", 1.0, 0.05, 60.0));

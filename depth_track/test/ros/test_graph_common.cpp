@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 #include <ros/time.h>
 
+#include <sys/resource.h>
+
 #include <atomic>
 #include <chrono>
 #include <thread>
@@ -50,6 +52,60 @@ TEST(FrameQueue, LiveKeepsTheFreshestAndCountsSkips) {
   std::this_thread::sleep_for(std::chrono::milliseconds(10));
   q.stop();
   EXPECT_EQ(seen, (std::vector<int>{0, 9}));
+}
+
+// A stage slowed on purpose (held until released) while frames keep coming: with two waiting
+// slots one overrun costs nothing, and beyond them the oldest waiting frame goes, so the worker
+// always resumes on the freshest two and never on a backlog.
+TEST(FrameQueue, LiveDepthTwoAbsorbsOneOverrunAndSkipsTheOldest) {
+  std::atomic<bool> release{false};
+  std::vector<int> seen;
+  std::mutex m;
+  FrameQueueOptions o;
+  o.live_depth = 2;
+  FrameQueue<int> q(
+      Mode::kLive, 1000,
+      [&](const int& i) {
+        while (!release) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        std::lock_guard<std::mutex> lock(m);
+        seen.push_back(i);
+      },
+      o);
+  q.push(0);
+  while (q.waiting() > 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  q.push(1);  // the stage overran one period: 1 waits, nothing lost
+  EXPECT_EQ(q.skipped(), 0u);
+  EXPECT_EQ(q.waiting(), 1u);
+  q.push(2);
+  EXPECT_EQ(q.skipped(), 0u);
+  EXPECT_EQ(q.waiting(), 2u);
+  for (int i = 3; i <= 6; ++i) q.push(i);  // still held: 1, 2, 3, 4 pushed out in turn
+  EXPECT_EQ(q.skipped(), 4u);
+  EXPECT_EQ(q.waiting(), 2u);
+  release = true;
+  while (q.waiting() > 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  q.stop();
+  EXPECT_EQ(seen, (std::vector<int>{0, 5, 6}));
+  EXPECT_EQ(q.overflowed(), 0u);
+}
+
+// Linux nice is per thread: the worker runs at the value asked for, the caller stays as it was.
+TEST(FrameQueue, WorkerRunsAtItsNiceValue) {
+  errno = 0;
+  const int caller = getpriority(PRIO_PROCESS, 0);
+  std::atomic<int> in_worker{-100};
+  FrameQueueOptions o;
+  o.worker_nice = std::min(caller + 7, 19);
+  {
+    FrameQueue<int> q(
+        Mode::kLive, 1, [&](const int&) { in_worker = getpriority(PRIO_PROCESS, 0); }, o);
+    q.push(0);
+    while (in_worker == -100) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    EXPECT_EQ(q.workerNice(), o.worker_nice);
+  }
+  // getpriority(PRIO_PROCESS, 0) names the calling thread on Linux.
+  EXPECT_EQ(in_worker.load(), o.worker_nice);
+  EXPECT_EQ(getpriority(PRIO_PROCESS, 0), caller);
 }
 
 TEST(StampPairer, PairsEitherOrderAndReleasesOrphans) {
