@@ -11,6 +11,8 @@ are dropped (or --max-rate). Per run it reports:
   latency    stamp-to-publish latency of the registration (the status' latency_ms, on the bag's
              clock, which rosbag publishes every 1 ms here) median / p95, and the tool's own wall
              measurement from a frame's camera_info arriving to its odom -> base_link on /tf
+  others     CPU of rosbag play (its process group) and of this tool over the same time, in
+             cores: they share the two cores with the graph
   rss        peak resident memory of the manager (VmHWM) at the end of the run
   by stage   live-mode skips per nodelet from /diagnostics ("frames dropped": dropped total):
              ingest, pca_reduce, registration (the tracking chain, counted in `dropped`) and
@@ -57,6 +59,27 @@ def proc_cpu_s(pid):
         fields = f.read().rsplit(")", 1)[1].split()
     # utime and stime are fields 14 and 15 of stat; fields[0] here is field 3 (state).
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def group_cpu_s(pgid):
+    """utime+stime of every process in the process group (rosbag play and what it runs)."""
+    total = 0.0
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open("/proc/%s/stat" % pid) as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            if int(fields[2]) == pgid:  # field 5 (pgrp)
+                total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            continue
+    return total
+
+
+def self_cpu_s():
+    t = os.times()
+    return t.user + t.system
 
 
 def proc_hwm_mb(pid):
@@ -163,7 +186,9 @@ def run_once(bag, rate, frames, duration, collector, log, config=""):
     import rospy
 
     collector.reset()
-    manager = "depth_track_manager"
+    # A name of its own: on a shared machine another graph's depth_track_manager may be running,
+    # and its /proc figures would be taken for ours.
+    manager = "graph_speed_manager_%d" % os.getpid()
     launch = subprocess.Popen(
         ["roslaunch", os.path.join(ROOT, "launch", "tracking.launch"), "mode:=live",
          "loop_closure:=true", "depth_scale:=0.00025", "manager:=" + manager,
@@ -181,7 +206,7 @@ def run_once(bag, rate, frames, duration, collector, log, config=""):
             time.sleep(0.3)
         time.sleep(2.0)
         load0 = load_average()
-        cpu0, wall0 = proc_cpu_s(pid), time.time()
+        cpu0, wall0, tool0 = proc_cpu_s(pid), time.time(), self_cpu_s()
         # -k: the player keeps its publishers after the last frame (else the last frames can be
         # lost with the connection); it is stopped once the graph answered everything.
         player = subprocess.Popen(["rosbag", "play", "--clock", "--hz=%d" % CLOCK_HZ, "-q", "-k",
@@ -191,7 +216,8 @@ def run_once(bag, rate, frames, duration, collector, log, config=""):
         # Two seconds without a status, which also lets /diagnostics (1 s period) report the end.
         while time.time() - collector.last_wall < 2.0:
             time.sleep(0.1)
-        cpu1, wall1 = proc_cpu_s(pid), collector.last_wall
+        cpu1, wall1, tool1 = proc_cpu_s(pid), collector.last_wall, self_cpu_s()
+        player_cpu = group_cpu_s(player.pid)
         os.killpg(player.pid, signal.SIGINT)
         player.wait(timeout=20)
         hwm = proc_hwm_mb(pid)
@@ -220,7 +246,8 @@ def run_once(bag, rate, frames, duration, collector, log, config=""):
         "lat_p95": percentile(lat, 0.95),
         "tf_med": statistics.median(tf_lat) if tf_lat else float("nan"),
         "tf_p95": percentile(tf_lat, 0.95), "rss_mb": hwm, "load": load0 + " -> " + load1,
-        "by_stage": by_stage,
+        "by_stage": by_stage, "player_cpu": player_cpu / (wall1 - wall0),
+        "tool_cpu": (tool1 - tool0) / (wall1 - wall0),
     }
 
 
@@ -283,9 +310,10 @@ def main():
                                    r["dropped"], r["skipped"], r["missing"], r["cpu"],
                                    r["lat_med"], r["lat_p95"], r["tf_med"], r["tf_p95"],
                                    r["rss_mb"], r["load"]), flush=True)
-                print("%-12s     skipped by stage: %s" % (r["bag"], ", ".join(
-                    "%s %d" % (n, r["by_stage"][n]) for n in STAGES if n in r["by_stage"])),
-                      flush=True)
+                print("%-12s     skipped by stage: %s; cpu of rosbag play %.2f, of this tool %.2f "
+                      "cores" % (r["bag"], ", ".join("%s %d" % (n, r["by_stage"][n]) for n in STAGES
+                                                     if n in r["by_stage"]),
+                                 r["player_cpu"], r["tool_cpu"]), flush=True)
                 if not a.rates and r["dropped"] > 0:
                     break
     finally:
@@ -300,27 +328,27 @@ def main():
 
 
 def format_table(rows):
-    lines = ["| bag | frames | highest rate with 0 drops | drops at x1..xN | CPU at x1 (cores) "
-             "| latency x1 median / p95 (ms) | tf latency x1 median / p95 (ms, wall) "
-             "| peak RSS (MB) |",
-             "|---|---|---|---|---|---|---|---|"]
+    """One row per bag: drops at every rate run, the highest rate up to which none were dropped,
+    and the x1 run's figures (the lowest rate run when x1 was not)."""
+    lines = ["| bag | frames | dropped at x1, x2, ... | highest rate with 0 drops "
+             "| graph CPU (cores) | rosbag play CPU (cores) | stamp-to-tf median / p95 (ms, wall) "
+             "| status latency median / p95 (ms, bag clock) | peak RSS (MB) "
+             "| map frames skipped (fusion) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for bag in dict.fromkeys(r["bag"] for r in rows):
-        rs = [r for r in rows if r["bag"] == bag]
-        ok = [r["rate"] for r in rs if r["dropped"] == 0]
-        best = 0
-        for r in sorted(rs, key=lambda r: r["rate"]):
+        rs = sorted((r for r in rows if r["bag"] == bag), key=lambda r: r["rate"])
+        best = None
+        for r in rs:
             if r["dropped"] > 0:
                 break
             best = r["rate"]
-        one = next((r for r in rs if r["rate"] == 1), rs[0])
-        lines.append("| %s | %d | %s | %s | %.2f | %.1f / %.1f | %.1f / %.1f | %.0f |" % (
-            bag, one["frames"], ("x%d" % best) if best else "none (drops at x1)",
-            ", ".join("x%d: %d" % (r["rate"], r["dropped"]) for r in rs), one["cpu"],
-            one["lat_med"], one["lat_p95"], one["tf_med"], one["tf_p95"],
-            max(r["rss_mb"] for r in rs)))
-        del ok
+        one = rs[0]
+        lines.append("| %s | %d | %s | %s | %.2f | %.2f | %.1f / %.1f | %.1f / %.1f | %.0f | %s |" % (
+            bag, one["frames"], ", ".join("x%d: %d" % (r["rate"], r["dropped"]) for r in rs),
+            ("x%d" % best) if best else "none (drops at x%d)" % rs[0]["rate"], one["cpu"],
+            one["player_cpu"], one["tf_med"], one["tf_p95"], one["lat_med"], one["lat_p95"],
+            max(r["rss_mb"] for r in rs), one["by_stage"].get("fusion", "?")))
     return "\n".join(lines)
-
 
 if __name__ == "__main__":
     sys.exit(main())
