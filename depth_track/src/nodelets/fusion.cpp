@@ -4,11 +4,15 @@
 // the map). Publishes, rate-limited, `map/voxels` (PointCloud2 of occupied voxel centres, map
 // frame) and `map/markers` (MarkerArray, one CUBE_LIST per 0.5 m tile, only the tiles that
 // changed: unlike a full rebuild per insert, the cost follows what changed). Services:
-// ~save_map (OctoMap .bt), ~clear_map.
+// ~save_map (OctoMap .bt), ~clear_map, ~render_depth (rig_msgs/RenderDepth: the map's virtual
+// depth at a pose, cast by the core's ray caster; how a registration in another process
+// relocalises; answered on a thread of its own, so a wait for the map never stalls the frames).
 #include <image_transport/image_transport.h>
 #include <nodelet/nodelet.h>
+#include <rig_msgs/RenderDepth.h>
 #include <rig_msgs/SaveFile.h>
 #include <rig_msgs/TrackingStatus.h>
+#include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_srvs/Trigger.h>
@@ -28,7 +32,10 @@ namespace graph {
 
 class FusionNodelet : public nodelet::Nodelet {
  public:
-  ~FusionNodelet() override { input_.stop(); }
+  ~FusionNodelet() override {
+    if (render_spinner_) render_spinner_->stop();
+    input_.stop();
+  }
 
  private:
   using Frame = TrackedFrame;
@@ -57,6 +64,18 @@ class FusionNodelet : public nodelet::Nodelet {
     markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>("map/markers", 10, true);
     save_srv_ = pnh.advertiseService("save_map", &FusionNodelet::onSave, this);
     clear_srv_ = pnh.advertiseService("clear_map", &FusionNodelet::onClear, this);
+    // render_depth may wait for the map to catch up (replay): its own queue and thread, so the
+    // frames it waits for still come in through the nodelet's callbacks.
+    ros::AdvertiseServiceOptions render_opts;
+    render_opts.init<rig_msgs::RenderDepth>(
+        "render_depth",
+        [this](rig_msgs::RenderDepth::Request& req, rig_msgs::RenderDepth::Response& res) {
+          return onRender(req, res);
+        });
+    render_opts.callback_queue = &render_queue_;
+    render_srv_ = pnh.advertiseService(render_opts);
+    render_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &render_queue_);
+    render_spinner_->start();
     input_.start(
         nh, mode_, sync_queue, [this](const Frame& f) { process(f); }, queue_options);
     publish_timer_ = nh.createWallTimer(ros::WallDuration(std::max(publish_period_s_, 0.05)),
@@ -244,6 +263,52 @@ class FusionNodelet : public nodelet::Nodelet {
     NODELET_INFO("fusion: %s", res.message.c_str());
     return true;
   }
+  /// The virtual depth at the requested pose (map or odom frame), after waiting up to wait_s
+  /// for the map to hold every frame up to fused_upto. Every failure is an answer naming it.
+  bool onRender(rig_msgs::RenderDepth::Request& req, rig_msgs::RenderDepth::Response& res) {
+    res.success = false;
+    try {
+      // A microsecond below: the stamp went double -> ros::Time -> double on its way here.
+      const double upto = req.fused_upto.toSec() - 1e-6;
+      std::string late;
+      if (req.wait_s > 0.0 && upto > 0.0 && !ctx_->map.waitFused(upto, std::min(req.wait_s, 60.0)))
+        late = " (the map had not caught up with " + std::to_string(upto) + " s after " +
+               std::to_string(req.wait_s) + " s)";
+      Eigen::Isometry3d T_map_C = conv::fromPoseMsg(req.pose);
+      if (req.header.frame_id == odom_frame_) {
+        T_map_C = ctx_->map.correctionFor(req.header.stamp.toSec(), false, 0.0)
+                      .value_or(Eigen::Isometry3d::Identity()) *
+                  T_map_C;
+      } else if (req.header.frame_id != map_frame_) {
+        throw std::invalid_argument("pose in frame '" + req.header.frame_id + "'; expected '" +
+                                    map_frame_ + "' or '" + odom_frame_ + "'");
+      }
+      const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(req.camera_info);
+      const std::shared_ptr<VoxelMap> map = ctx_->map.map();
+      res.occupied_voxels = map ? map->occupiedCount() : 0;
+      if (res.occupied_voxels == 0) throw std::runtime_error("the map is empty" + late);
+      const DepthImage virt =
+          render_caster_
+              .over(map, K,
+                    [&](const VoxelMap& m) {
+                      return std::make_unique<MapRayCaster>(m, K, config_.range);
+                    })
+              .cast(T_map_C);
+      std_msgs::Header h = req.header;
+      h.frame_id = req.camera_info.header.frame_id;
+      res.depth = *conv::depthToMsg(virt, h);
+      res.map_pose = conv::toPoseMsg(T_map_C);
+      res.success = true;
+      res.message = "cast " + std::to_string(K.width) + "x" + std::to_string(K.height) + ", " +
+                    std::to_string(virt.countValid()) + " returns from " +
+                    std::to_string(res.occupied_voxels) + " occupied voxels" + late;
+    } catch (const std::exception& e) {
+      res.message = std::string("render_depth: ") + e.what();
+      NODELET_WARN_THROTTLE(1.0, "fusion: %s", res.message.c_str());
+    }
+    return true;
+  }
+
   bool onClear(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
     ctx_->map.clear(ctx_->map.epoch());
     map_changed_ = true;
@@ -261,7 +326,11 @@ class FusionNodelet : public nodelet::Nodelet {
   double last_stamp_ = -1.0;
   std::atomic<std::uint64_t> fused_{0}, not_fused_{0}, publications_{0};
   std::atomic<double> last_publish_wall_s_{0.0};
-  MapStage<MapFuser> fuser_;  // the fusion worker's only
+  MapStage<MapFuser> fuser_;              // the fusion worker's only
+  MapStage<MapRayCaster> render_caster_;  // the render_depth thread's only
+  ros::CallbackQueue render_queue_;
+  std::unique_ptr<ros::AsyncSpinner> render_spinner_;
+  ros::ServiceServer render_srv_;
   StageDiagnostics diag_;
   std::atomic<bool> map_changed_{false};
   std::unordered_map<std::int64_t, std::pair<std::size_t, int>> tiles_;  // key -> (voxels, id)

@@ -15,6 +15,7 @@
 #include <atomic>
 #include <cerrno>
 #include <condition_variable>
+#include <cstdio>
 #include <deque>
 #include <functional>
 #include <map>
@@ -366,6 +367,66 @@ class MapStage {
   std::shared_ptr<VoxelMap> map_;  // declared before stage_: outlives it
   PinholeIntrinsics K_;
   std::unique_ptr<Stage> stage_;
+};
+
+/// A ROS service called on a thread of its own, so the caller waits at most a timeout for the
+/// answer (roscpp's call has none: a slow or vanished server would stall a frame worker for as
+/// long as the connection lives). One call at a time: while one that timed out is still out, the
+/// next is refused rather than queued behind it. Thread-safe.
+template <class Srv>
+class TimedServiceCall {
+ public:
+  explicit TimedServiceCall(std::string service) : service_(std::move(service)) {}
+  const std::string& service() const { return service_; }
+  /// The answer within timeout_s, or nullopt with *why naming what went wrong.
+  std::optional<typename Srv::Response> call(const typename Srv::Request& req, double timeout_s,
+                                             std::string* why) {
+    auto state = std::make_shared<State>();
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (busy_ && !busy_->done) {
+        *why = service_ + ": the previous call is still out";
+        return std::nullopt;
+      }
+      busy_ = state;
+    }
+    // The thread owns the state: a call that outlives the wait (or this object) ends on its own.
+    std::thread([state, req, name = service_] {
+      Srv srv;
+      srv.request = req;
+      const bool ok = ros::service::call(name, srv);
+      std::lock_guard<std::mutex> lock(state->mutex);
+      state->ok = ok;
+      state->response = srv.response;
+      state->done = true;
+      state->cv.notify_all();
+    }).detach();
+    std::unique_lock<std::mutex> lock(state->mutex);
+    if (!state->cv.wait_for(lock, std::chrono::duration<double>(timeout_s),
+                            [&] { return state->done.load(); })) {
+      char s[32];
+      std::snprintf(s, sizeof(s), "%g", timeout_s);
+      *why = service_ + ": no answer within " + s + " s";
+      return std::nullopt;
+    }
+    if (!state->ok) {
+      *why = service_ + ": call failed (is the node that offers it running?)";
+      return std::nullopt;
+    }
+    return state->response;
+  }
+
+ private:
+  struct State {
+    std::mutex mutex;
+    std::condition_variable cv;
+    std::atomic<bool> done{false};
+    bool ok = false;
+    typename Srv::Response response;
+  };
+  std::string service_;
+  std::mutex mutex_;
+  std::shared_ptr<State> busy_;
 };
 
 /// Wall times of the front stages per frame stamp, so that the registration's status can report

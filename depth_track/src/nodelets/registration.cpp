@@ -3,12 +3,14 @@
 // never assumed), `odom` (nav_msgs/Odometry: child_frame_id, twist, covariance from the normal
 // equations), `path` (capped), `status` (rig_msgs/TrackingStatus per frame). Optional motion
 // prior from tf (~guess_frame). While LOST, relocalises against the map's ray cast at the held
-// pose (the fusion nodelet's map, same manager). Services: ~reset, ~reset_to_pose,
-// ~save_trajectory (TUM, odom and map poses), ~pause, ~resume.
+// pose: the fusion nodelet's map when it runs in this manager, else its ~render_depth service
+// (another process or machine; answers waited for at most ~render_timeout). Services: ~reset,
+// ~reset_to_pose, ~save_trajectory (TUM, odom and map poses), ~pause, ~resume.
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/Odometry.h>
 #include <nav_msgs/Path.h>
 #include <nodelet/nodelet.h>
+#include <rig_msgs/RenderDepth.h>
 #include <rig_msgs/ResetToPose.h>
 #include <rig_msgs/SaveFile.h>
 #include <rig_msgs/TrackingStatus.h>
@@ -65,6 +67,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     lost_rot_var_ = r.getDouble("lost_rotation_var");
     relocalise_ = r.getBool("relocalise");
     relocalise_every_ = r.getInt("relocalise_every");
+    const std::string render_service = r.getString("render_service");
+    render_timeout_s_ = r.getDouble("render_timeout");
     trajectory_path_ = r.getString("trajectory_path");
     FrameQueueOptions queue_options;
     queue_options.live_depth = r.getInt("live_queue");
@@ -97,6 +101,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     mapper_config_ = readMapperTable(r, nh);
     r.finish();
     ctx_ = graphContext(nh.getNamespace());
+    render_call_ =
+        std::make_unique<TimedServiceCall<rig_msgs::RenderDepth>>(nh.resolveName(render_service));
     diag_.start(nh, pnh, getName(), readDiagnosticThresholds(nh), {true, true, true, true});
     method_name_ = toString(config_.registration.method);
     fm_from_start_ = config_.registration.method == RegistrationMethod::kCellSearch;
@@ -328,7 +334,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
         if (relocalise_ && lost_frames_ % relocalise_every_ == 0) {
           const double now_stamp = prev_stamp_;
           prev_stamp_ = prev_stamp;  // the frame before this one must be in the map
-          tryRelocalise(h, &st);
+          tryRelocalise(h, *info, &st);
           prev_stamp_ = now_stamp;
         }
       } else {
@@ -353,10 +359,12 @@ class RegistrationNodelet : public nodelet::Nodelet {
   }
 
   /// Registers the lost frame onto the map ray-cast at the held pose (wider search).
-  void tryRelocalise(const std_msgs::Header& h, FrameStatus* st) {
+  void tryRelocalise(const std_msgs::Header& h, const sensor_msgs::CameraInfo& info,
+                     FrameStatus* st) {
     const Eigen::Isometry3d T_odom_C = odometry_->pose();
     std::string why;
-    const DepthImage virt = castHere(T_odom_C, &why);
+    const DepthImage virt =
+        ctx_->map.fusionAttached() ? castHere(T_odom_C, &why) : castRemote(h, info, T_odom_C, &why);
     if (virt.empty()) {  // the status shows it (publishFrame takes st's failure)
       st->failure += "; relocalisation: no map to relocalise against: " + why;
       return;
@@ -391,8 +399,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     const Eigen::Isometry3d T_map_odom = ctx_->map.latestCorrection();
     const std::shared_ptr<VoxelMap> map = ctx_->map.map();
     if (!map || map->occupiedCount() == 0) {
-      *why = ctx_->map.fusionAttached() ? "the map is empty"
-                                        : "the fusion nodelet does not run in this manager";
+      *why = "the map is empty";
       return DepthImage();
     }
     return reloc_caster_
@@ -401,6 +408,30 @@ class RegistrationNodelet : public nodelet::Nodelet {
                 return std::make_unique<MapRayCaster>(m, K_, mapper_config_.range);
               })
         .cast(T_map_odom * T_odom_C);
+  }
+
+  /// The map of a fusion nodelet in another process, cast there (its ~render_depth) at the held
+  /// pose in the odom frame, which it turns into the map frame with its own correction.
+  DepthImage castRemote(const std_msgs::Header& h, const sensor_msgs::CameraInfo& info,
+                        const Eigen::Isometry3d& T_odom_C, std::string* why) {
+    rig_msgs::RenderDepth::Request req;
+    req.header.stamp = h.stamp;
+    req.header.frame_id = odom_frame_;
+    req.pose = conv::toPoseMsg(T_odom_C);
+    req.camera_info = info;
+    if (mode_ == Mode::kReplay && prev_stamp_ > 0.0) {  // the offline order, as castHere
+      req.fused_upto = ros::Time(prev_stamp_);
+      req.wait_s = kReplayMapWait_s;
+    }
+    const auto res = render_call_->call(req, req.wait_s + render_timeout_s_, why);
+    if (!res) return DepthImage();
+    if (!res->success) {
+      *why = res->message;
+      return DepthImage();
+    }
+    if (res->message.find("caught up") != std::string::npos)
+      NODELET_WARN("registration: %s", res->message.c_str());
+    return conv::depthFromMsg(res->depth, 1.0, DepthRange{0.0, 1e9});
   }
 
   void publishFrame(const std_msgs::Header& h, const FrameStatus& st, double ms_register,
@@ -567,6 +598,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
   int path_length_ = 2000, relocalise_every_ = 3;
   /// Replay: how long a relocalisation waits for the map to hold every earlier frame.
   static constexpr double kReplayMapWait_s = 10.0;
+  double render_timeout_s_ = 0.5;
+  std::unique_ptr<TimedServiceCall<rig_msgs::RenderDepth>> render_call_;
   TrackerConfig config_;
   MapperConfig mapper_config_;
   std::shared_ptr<GraphContext> ctx_;

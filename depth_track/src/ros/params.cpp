@@ -122,11 +122,19 @@ std::vector<NodeParamSpec> makeParams() {
   p.push_back(num("registration", "lost_rotation_var", "rad^2",
                   "rotation variance published while LOST (inflated)", 0.1, 0.0, kInf));
   p.push_back(flag("registration", "relocalise",
-                   "while LOST, register against the map's ray cast at the held pose "
-                   "(needs the fusion nodelet in the same manager)",
+                   "while LOST, register against the map's ray cast at the held pose (the fusion "
+                   "nodelet's map in this manager, else cast by its render_depth service)",
                    true));
   p.push_back(integer("registration", "relocalise_every", "frames",
                       "attempt a relocalisation every n-th lost frame", 3, 1, 1000));
+  p.push_back(text("registration", "render_service",
+                   "the fusion nodelet's render_depth service (relative to the graph's "
+                   "namespace), asked when fusion runs in another process",
+                   "fusion/render_depth"));
+  p.push_back(num("registration", "render_timeout", "s",
+                  "longest wait for render_depth's answer (replay: after up to 10 s for the map "
+                  "to catch up); the frame stays LOST when it comes later",
+                  0.5, 0.01, 60.0));
   p.push_back(text("registration", "trajectory_path",
                    "default file of save_trajectory (TUM format; map poses beside it as "
                    "<name>_map.txt)",

@@ -717,6 +717,18 @@ TEST(Graph, BadParameterStopsTheNodeletNamingIt) {
   EXPECT_NE(out.find("/bad_graph/tracker/cell_size = 7"), std::string::npos) << out;
   EXPECT_NE(out.find("/bad_graph/pca_reduce/threads = 0: must lie in [1, 64]"), std::string::npos)
       << out;
+  // A wait for the map's process that cannot get an answer (0 s) stops the registration.
+  ros::param::set("/bad_graph/registration/render_timeout", 0.0);
+  FILE* q = popen(
+      "timeout 60 rosrun nodelet nodelet standalone depth_track/registration __ns:=/bad_graph "
+      "__name:=registration 2>&1",
+      "r");
+  ASSERT_NE(q, nullptr);
+  out.clear();
+  while (std::fgets(buf, sizeof(buf), q)) out += buf;
+  EXPECT_NE(pclose(q), 0) << out;
+  EXPECT_NE(out.find("/bad_graph/registration/render_timeout = 0: must lie in"), std::string::npos)
+      << out;
 }
 
 // graph_loop.test: the same graph with loop closure on and the thesis's frame-to-frame tracking
