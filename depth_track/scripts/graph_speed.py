@@ -11,6 +11,11 @@ are dropped (or --max-rate). Per run it reports:
   latency    stamp-to-publish latency of the registration (the status' latency_ms, on the bag's
              clock, which rosbag publishes every 1 ms here) median / p95, and the tool's own wall
              measurement from a frame's camera_info arriving to its odom -> base_link on /tf
+  rejected   frames the graph refused with a status naming why (at the start: no camera mount
+             on tf yet); not drops
+  on time    how late the player's camera_info reached this tool against the bag's schedule
+             (p99 / max, ms, the earliest message as zero): tells a stalled player or machine
+             from a slow graph
   others     CPU of rosbag play (its process group) and of this tool over the same time, in
              cores: they share the two cores with the graph
   rss        peak resident memory of the manager (VmHWM) at the end of the run
@@ -138,10 +143,13 @@ class Collector:
             self.info_wall = {}
             self.tf_wall = {}
             self.stage_dropped = {}
+            self.rejected = set()
             self.last_wall = time.time()
 
     def on_status(self, s):
         if s.input_rejected:
+            with self.lock:
+                self.rejected.add(s.header.stamp.to_nsec())
             return
         with self.lock:
             self.statuses[s.header.stamp.to_nsec()] = (s.latency_ms, s.frames_dropped, s.state_name)
@@ -232,15 +240,24 @@ def run_once(bag, rate, frames, duration, collector, log, config=""):
     with collector.lock:
         st = dict(collector.statuses)
         by_stage = dict(collector.stage_dropped)
+        rejected = len(collector.rejected - set(st))
+        arrivals = sorted((k, w) for k, w in collector.info_wall.items())
         tf_lat = [1e3 * (collector.tf_wall[k] - collector.info_wall[k])
                   for k in collector.tf_wall if k in collector.info_wall]
     skipped = max([v[1] for v in st.values()], default=0)
-    missing = max(0, frames - len(st) - skipped)
+    missing = max(0, frames - len(st) - skipped - rejected)
+    late = []
+    if arrivals:
+        k0, w0 = arrivals[0]
+        late = [(w - w0) - (k - k0) * 1e-9 / rate for k, w in arrivals]
+        late = [1e3 * (x - min(late)) for x in late]
     lat = [v[0] for v in st.values()]
     tracked = sum(1 for v in st.values() if v[2] == "TRACKING")
     return {
         "rate": rate, "frames": frames, "statuses": len(st), "tracked": tracked,
         "skipped": skipped, "missing": missing, "dropped": skipped + missing,
+        "rejected": rejected, "late_p99": percentile(late, 0.99),
+        "late_max": max(late, default=float("nan")),
         "cpu": (cpu1 - cpu0) / (wall1 - wall0), "wall": wall1 - wall0,
         "lat_med": statistics.median(lat) if lat else float("nan"),
         "lat_p95": percentile(lat, 0.95),
@@ -310,10 +327,12 @@ def main():
                                    r["dropped"], r["skipped"], r["missing"], r["cpu"],
                                    r["lat_med"], r["lat_p95"], r["tf_med"], r["tf_p95"],
                                    r["rss_mb"], r["load"]), flush=True)
-                print("%-12s     skipped by stage: %s; cpu of rosbag play %.2f, of this tool %.2f "
-                      "cores" % (r["bag"], ", ".join("%s %d" % (n, r["by_stage"][n]) for n in STAGES
-                                                     if n in r["by_stage"]),
-                                 r["player_cpu"], r["tool_cpu"]), flush=True)
+                print("%-12s     skipped by stage: %s; rejected %d; cpu of rosbag play %.2f, of "
+                      "this tool %.2f cores; camera_info late p99 %.1f max %.1f ms" % (
+                          r["bag"], ", ".join("%s %d" % (n, r["by_stage"][n]) for n in STAGES
+                                              if n in r["by_stage"]),
+                          r["rejected"], r["player_cpu"], r["tool_cpu"], r["late_p99"],
+                          r["late_max"]), flush=True)
                 if not a.rates and r["dropped"] > 0:
                     break
     finally:
