@@ -165,7 +165,8 @@ int main(int argc, char** argv) {
       std::fprintf(
           status,
           "stamp_s,tracked,cells,candidates,matches,fm_matches,duplicates_broken,iterations,"
-          "error_rms_m,ms_prefilter,ms_reduce,ms_register,ms_total,failure\n");
+          "error_rms_m,degenerate,weakest_information,ms_prefilter,ms_reduce,ms_register,ms_total,"
+          "failure\n");
     }
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
@@ -239,10 +240,11 @@ int main(int argc, char** argv) {
             st.failure.c_str());
       }
       if (status)
-        std::fprintf(status, "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
+        std::fprintf(status, "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
-                     st.duplicates_broken, st.iterations, st.error_rms_m, st.ms_prefilter,
-                     st.ms_reduce, st.ms_register, st.ms_total, st.failure.c_str());
+                     st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
+                     st.weakest_information, st.ms_prefilter, st.ms_reduce, st.ms_register,
+                     st.ms_total, st.failure.c_str());
     }
     if (status) std::fclose(status);
     const std::string what =
@@ -272,6 +274,8 @@ int main(int argc, char** argv) {
     }
     for (const auto& [reason, count] : failures)
       std::printf("flagged %d frames: %s\n", count, reason.c_str());
+    if (tracker.noiseCalibration())
+      std::printf("noise: %s\n", tracker.noiseCalibration()->summary.c_str());
     const CellCloud& cells = tracker.lastCells();
     std::printf(
         "cells (last frame, cell size %d px): total=%d retained=%d pruned_invalid=%d "

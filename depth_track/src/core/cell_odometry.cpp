@@ -1,12 +1,23 @@
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/angles.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
 namespace depth_track {
+
+namespace {
+// The prior is never trusted beyond this per frame (metres): 2 mm in one frame at 30 Hz is an
+// acceleration of ~2 m/s^2, which a hand or a rig starting to move can reach unannounced; a
+// camera at rest must not earn a prior that its first move then breaks.
+constexpr double kMinPriorSigmaM = 0.002;
+// ... and a prior that has not yet predicted any frame is worth little (1 cm per frame).
+constexpr double kUntestedPriorSigmaM = 0.01;
+}  // namespace
 
 std::vector<std::string> RelocaliseConfig::validate() const {
   std::vector<std::string> p;
@@ -28,6 +39,8 @@ std::vector<std::string> CellOdometryConfig::validate() const {
   if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
   if (!(max_jump_m > 0.0)) p.push_back("max_jump_m must be > 0 m");
   if (!(max_jump_deg > 0.0)) p.push_back("max_jump_deg must be > 0 deg");
+  if (velocity_window < 0 || velocity_window > 300)
+    p.push_back("velocity_window must lie in [0, 300] frames");
   for (const auto& s : relocalise.validate()) p.push_back(s);
   return p;
 }
@@ -89,14 +102,48 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   grid_ = AssociationGrid();
   state_ = TrackingState::kLost;
   frames_since_refresh_ = 0;
+  history_.clear();
+  prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
 }
 
 void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
   if (!T_W_C.matrix().allFinite()) throw std::invalid_argument("correctPose: pose is not finite");
   // Move the reference with the camera so the next registration stays consistent.
   const Eigen::Isometry3d T_C_Cref = T_W_C_.inverse() * T_W_Cref_;
+  const Eigen::Isometry3d correction = orthonormalized(T_W_C) * T_W_C_.inverse();
   T_W_C_ = orthonormalized(T_W_C);
   T_W_Cref_ = orthonormalized(T_W_C_ * T_C_Cref);
+  for (auto& h : history_) h.second = correction * h.second;
+}
+
+std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s) const {
+  if (config_.velocity_window < 2 || history_.size() < 2) return std::nullopt;
+  // Translation: least-squares line through the positions (its slope is the world velocity);
+  // rotation: the mean body rate from the first to the last pose of the window.
+  double tm = 0.0;
+  Eigen::Vector3d pm = Eigen::Vector3d::Zero();
+  for (const auto& [t, T] : history_) {
+    tm += t;
+    pm += T.translation();
+  }
+  tm /= static_cast<double>(history_.size());
+  pm /= static_cast<double>(history_.size());
+  double stt = 0.0;
+  Eigen::Vector3d stp = Eigen::Vector3d::Zero();
+  for (const auto& [t, T] : history_) {
+    stt += (t - tm) * (t - tm);
+    stp += (t - tm) * (T.translation() - pm);
+  }
+  const double span = history_.back().first - history_.front().first;
+  if (!(stt > 0.0) || !(span > 0.0)) return std::nullopt;
+  const double dt = stamp_s - last_stamp_s_;
+  const Eigen::AngleAxisd rate(history_.front().second.rotation().transpose() *
+                               history_.back().second.rotation());
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = T_W_C_.rotation() *
+               Eigen::AngleAxisd(rate.angle() * dt / span, rate.axis()).toRotationMatrix();
+  T.translation() = T_W_C_.translation() + stp / stt * dt;
+  return T;
 }
 
 FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
@@ -130,6 +177,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       return st;
     }
     last_cells_ = cells;
+    last_stamp_s_ = st.stamp_s;
     setReference(std::move(cells));
     st.tracked = true;
     st.new_keyframe = true;
@@ -142,6 +190,16 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
 
   const auto t1 = std::chrono::steady_clock::now();
   const Eigen::Isometry3d guess = T_W_Cref_.inverse() * T_W_pred;
+  // The smoothed prediction the held directions would follow, and how good it has been.
+  const std::optional<Eigen::Isometry3d> smoothed = prior_T_Cprev_Ccur || !config_.constant_velocity
+                                                        ? std::nullopt
+                                                        : smoothedPrediction(st.stamp_s);
+  RegistrationConfig reg_config = config_.registration;
+  reg_config.degeneracy.prior_sigma_m = std::sqrt(prior_var_m2_);
+  // A motion prior exists only while tracking: after lost frames the guess is a pose held through
+  // them, and holding it along directions the first, badly aligned pairs seem not to fix would
+  // also keep the jump gate from seeing how far off it is. Every direction is solved then.
+  if (state_ != TrackingState::kTracking) reg_config.degeneracy.noise_margin = 0.0;
   RegistrationResult reg;
   if (st.cells < config_.registration.min_matches) {
     std::ostringstream s;
@@ -149,7 +207,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       << config_.registration.min_matches << ")";
     reg.failure = s.str();
   } else {
-    reg = registerCells(*reference_, grid_, *cells, intrinsics_, guess, config_.registration);
+    reg = registerCells(*reference_, grid_, *cells, intrinsics_, guess, reg_config);
   }
   st.ms_register = msSince(t1);
   timing_.add(st.ms_register);
@@ -160,6 +218,19 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   st.iterations = reg.iterations;
   st.error_rms_m = reg.error_rms_m;
   st.normal_matrix = reg.normal_matrix;
+  st.degenerate_directions = reg.degeneracy.degenerate;
+  {
+    // The direction with the least information relative to its noise floor.
+    double weakest = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < 6; ++i) {
+      const double f = reg.degeneracy.noise_floor(i);
+      if (f > 0.0) weakest = std::min(weakest, reg.degeneracy.eigenvalues(i) / f);
+    }
+    st.weakest_information = std::isfinite(weakest) ? weakest : 0.0;
+  }
+  if (reg.matches > 0)
+    st.covariance = registrationCovariance(reg.degeneracy, reg.error_rms_m * reg.error_rms_m,
+                                           reg_config.degeneracy);
 
   std::string failure = reg.failure;
   if (failure.empty() && !reg.T_ref_cur.matrix().allFinite())
@@ -183,14 +254,35 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   }
 
   const Eigen::Isometry3d T_W_prev = T_W_C_;
+  const bool held = reg.degeneracy.degenerate > 0;
   if (failure.empty()) {
-    T_W_C_ = orthonormalized(T_W_Cref_ * reg.T_ref_cur);
+    Eigen::Isometry3d T_ref_cur = reg.T_ref_cur;
+    // The registration kept the prediction (the last frame's motion) along the held
+    // directions; there the smoothed velocity of the frames before is the better prior.
+    if (held && smoothed)
+      T_ref_cur =
+          withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * *smoothed);
+    T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     st.tracked = true;
     state_ = TrackingState::kTracking;
     velocity_T_Cprev_Ccur_ = T_W_prev.inverse() * T_W_C_;
+    // A frame that left directions unfixed repeats the prediction there (or, turning
+    // degenerate, follows weak constraints): the velocity stays the one measured before.
+    if (!held) {
+      if (smoothed) {
+        // Running mean square of the smoothed prediction's error: the prior's sigma.
+        const double e2 = (T_W_C_.translation() - smoothed->translation()).squaredNorm() / 3.0;
+        prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
+      }
+      history_.emplace_back(st.stamp_s, T_W_C_);
+      while (static_cast<int>(history_.size()) > std::max(2, config_.velocity_window))
+        history_.pop_front();
+    }
   } else {
-    // Keep the predicted pose and flag the frame; the reference stays as it was.
+    // Keep the predicted pose and flag the frame; the reference stays as it was. The velocity
+    // window starts again with the next tracked frames.
     T_W_C_ = orthonormalized(T_W_pred);
+    history_.clear();
     st.failure = failure;
     if (state_ != TrackingState::kRelocalising) state_ = TrackingState::kLost;
   }
@@ -213,6 +305,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     setReference(std::move(cells));
     st.new_keyframe = true;
   }
+  last_stamp_s_ = st.stamp_s;
   st.T_W_C = T_W_C_;
   st.ms_total = msSince(t0);
   return st;
@@ -239,6 +332,9 @@ RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
   reg.match.search_radius_cells = config_.relocalise.search_radius_cells;
   reg.match.initial_dist_m = config_.relocalise.initial_dist_m;
   reg.max_iterations = config_.relocalise.max_iterations;
+  // The guess is a pose held through lost frames, not a motion prior worth keeping along
+  // directions the first, badly aligned pairs seem not to fix: every direction is solved.
+  reg.degeneracy.noise_margin = 0.0;
   r.registration =
       registerCells(reference, cur, intrinsics_, T_W_Cref.inverse() * T_W_C_guess, reg);
   const RegistrationResult& res = r.registration;
@@ -259,6 +355,7 @@ RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
   }
   T_W_C_ = orthonormalized(T_W_Cref * res.T_ref_cur);
   velocity_T_Cprev_Ccur_ = Eigen::Isometry3d::Identity();
+  history_.clear();
   setReference(last_cells_);
   state_ = TrackingState::kTracking;
   r.accepted = true;

@@ -33,6 +33,9 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
   if (!(edge_jump_rel >= 0.0 && edge_jump_rel < 1.0))
     problems.push_back("edge_jump_rel must lie in [0, 1)");
   if (!(edge_jump_min_m >= 0.0)) problems.push_back("edge_jump_min_m must be >= 0 m");
+  if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
+    problems.push_back("noise_sigma_const_m and noise_sigma_quad_per_m must be >= 0");
+  if (!(edge_jump_sigmas >= 0.0)) problems.push_back("edge_jump_sigmas must be >= 0");
   if (normal_radius_cells < 0 || normal_radius_cells > 4)
     problems.push_back("normal_radius_cells must lie in [0, 4]");
   if (!(normal_merge_dist_m > 0.0)) problems.push_back("normal_merge_dist_m must be > 0 m");
@@ -92,8 +95,12 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   const bool edge_test = config.edge_jump_rel > 0.0;
   const float rel = static_cast<float>(config.edge_jump_rel);
   const float floor_m = static_cast<float>(config.edge_jump_min_m);
+  const float k0 = static_cast<float>(config.edge_jump_sigmas * config.noise_sigma_const_m);
+  const float k2 = static_cast<float>(config.edge_jump_sigmas * config.noise_sigma_quad_per_m);
+  // Smallest jump that counts as an edge at depth z (the nearer of the two pixels).
+  auto threshold = [&](float z) { return std::max(std::max(floor_m, rel * z), k0 + k2 * z * z); };
   auto jump = [&](float a, float b) {
-    return a > 0.0f && b > 0.0f && std::abs(a - b) > std::max(floor_m, rel * std::min(a, b));
+    return a > 0.0f && b > 0.0f && std::abs(a - b) > threshold(std::min(a, b));
   };
   const int max_missing = n * n - min_valid;
   int count = 0, missing = 0;
@@ -133,7 +140,7 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
     }
   }
   // Only a cell whose depths spread wider than one edge jump can contain one.
-  if (edge_test && z_hi - z_lo > std::max(floor_m, rel * z_lo)) {
+  if (edge_test && z_hi - z_lo > threshold(z_lo)) {
     for (int v = v0; v < v0 + n; ++v) {
       const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
       for (int u = u0; u < u0 + n; ++u) {

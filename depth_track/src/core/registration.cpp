@@ -9,6 +9,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "depth_track/core/degeneracy.hpp"
 #include "depth_track/core/se3.hpp"
 
 namespace depth_track {
@@ -49,6 +50,7 @@ std::vector<std::string> RegistrationConfig::validate() const {
   if (!(tolerance_rad >= 0.0)) p.push_back("tolerance_rad must be >= 0 rad");
   if (!(huber_delta_m > 0.0)) p.push_back("huber_delta_m must be > 0 m");
   if (min_matches < 6) p.push_back("min_matches must be >= 6 (six unknowns)");
+  for (const auto& s : degeneracy.validate()) p.push_back(s);
   return p;
 }
 
@@ -242,23 +244,33 @@ double huberWeight(double residual, const RegistrationConfig& config) {
 }
 
 // One point-to-plane Gauss-Newton step: minimises sum w (n_r . (p - q_r))^2 over the increment
-// [omega; v] with p' = p + omega x p + v. Returns false when the system is singular.
+// [omega; v] with p' = p + omega x p + v, in the directions the pairs constrain (the analysis of
+// the normal equations decides which; in the others the increment is zero, so the estimate keeps
+// the initial guess there). The analysis and the constrained solve use the rotation about the
+// current camera centre c and the centre's displacement u = v + omega x c: a rotation
+// correction then leaves the centre where it was, so along a direction the view cannot fix the
+// camera centre keeps exactly the motion the guess gave it (about the reference origin, a
+// rotation correction would move it there by omega x c). H_out is in [omega; v].
+// Returns false when the system is singular.
 bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const MatchResult& m,
-                       const RegistrationConfig& config, Vector6d* xi, double* rms,
-                       Matrix6d* normal_matrix) {
+                       const RegistrationConfig& config, const Eigen::Vector3d& c_ref, Vector6d* xi,
+                       double* rms, Matrix6d* normal_matrix, DegeneracyAnalysis* analysis) {
   // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
   double h[21] = {0};
   Vector6d g = Vector6d::Zero();
-  double sq = 0.0;
+  double sq = 0.0, wsum = 0.0, range2 = 0.0, misalign = 0.0;
   for (const auto& [r, c] : m.pairs) {
     const Eigen::Vector3d q = reference.cells[r].mean_C.cast<double>();
     const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
     const Eigen::Vector3d p = moved.p[c].cast<double>();
     const double e = n.dot(p - q);
     sq += e * e;
-    const Eigen::Vector3d pxn = p.cross(n);
+    range2 += (p - c_ref).squaredNorm();
+    misalign += 1.0 - std::min(1.0, n.dot(moved.n[c].cast<double>()));
+    const Eigen::Vector3d pxn = (p - c_ref).cross(n);
     const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
     const double w = huberWeight(e, config);
+    wsum += w;
     int k = 0;
     for (int i = 0; i < 6; ++i) {
       const double wJi = w * J[i];
@@ -266,20 +278,36 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
       for (int j = i; j < 6; ++j) h[k++] += wJi * J[j];
     }
   }
-  Eigen::Matrix<double, 6, 6> H;
+  Matrix6d H;
   {
     int k = 0;
     for (int i = 0; i < 6; ++i)
       for (int j = i; j < 6; ++j) H(i, j) = H(j, i) = h[k++];
   }
-  *rms = std::sqrt(sq / std::max<std::size_t>(1, m.pairs.size()));
-  *normal_matrix = H;
-  Eigen::Matrix<double, 6, 6> Hs = H;
-  // A whisper of damping keeps directions the scene cannot observe (a bare wall) at zero motion.
-  Hs.diagonal().array() += 1e-9 * Hs.trace() / 6.0 + 1e-12;
-  Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(Hs);
-  if (ldlt.info() != Eigen::Success) return false;
-  *xi = ldlt.solve(-g);
+  const std::size_t n_pairs = std::max<std::size_t>(1, m.pairs.size());
+  *rms = std::sqrt(sq / n_pairs);
+  *analysis = analyseNormalEquations(H, wsum, std::sqrt(range2 / n_pairs));
+  if (config.degeneracy.noise_margin > 0.0) {
+    // What the normals' noise alone puts into each eigen-direction (DegeneracyConfig): 1 - cos
+    // of two independently noisy normals averages twice one normal's in-plane variance.
+    NoiseFloorAccumulator acc(*analysis);
+    for (const auto& [r, c] : m.pairs) {
+      const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
+      const Eigen::Vector3d p = moved.p[c].cast<double>();
+      acc.add(p - c_ref, n,
+              huberWeight(n.dot(p - reference.cells[r].mean_C.cast<double>()), config));
+    }
+    applyNoiseFloors(analysis, acc.floors(0.5 * misalign / n_pairs), sq / n_pairs,
+                     config.degeneracy);
+  }
+  const Vector6d y = solveConstrained(*analysis, g);  // [omega; u]
+  xi->head<3>() = y.head<3>();
+  xi->tail<3>() = y.tail<3>() - y.head<3>().cross(c_ref);
+  // [omega; u] = A [omega; v] with u = v + omega x c = v - [c]x omega, so H_v = A^T H_u A.
+  Matrix6d A = Matrix6d::Identity();
+  A.block<3, 3>(3, 0) << 0, c_ref.z(), -c_ref.y(), -c_ref.z(), 0, c_ref.x(), c_ref.y(), -c_ref.x(),
+      0;
+  *normal_matrix = A.transpose() * H * A;
   return xi->allFinite();
 }
 
@@ -377,6 +405,7 @@ RegistrationResult registerCells(const CellCloud& reference, const AssociationGr
   int since_best = 0;
   Moved moved;
   Matrix6d H = Matrix6d::Zero(), H_best = Matrix6d::Zero();
+  DegeneracyAnalysis analysis, analysis_best;
   FmCache fm_cache{std::vector<int>(current.cells.size(), -1),
                    std::vector<char>(current.cells.size(), 0)};
   for (int it = 0; it < config.max_iterations; ++it) {
@@ -409,10 +438,12 @@ RegistrationResult registerCells(const CellCloud& reference, const AssociationGr
       ok = solvePointToPoint(reference, moved, m, config, &delta, &rms, &H);
     } else {
       Vector6d xi;
-      ok = solvePointToPlane(reference, moved, m, config, &xi, &rms, &H);
+      ok =
+          solvePointToPlane(reference, moved, m, config, T.translation(), &xi, &rms, &H, &analysis);
       if (ok) delta = expIncrement(xi);
     }
     result.normal_matrix = H;
+    result.degeneracy = analysis;
     if (!ok) {
       result.failure = "singular registration system";
       result.T_ref_cur = std::isfinite(best_rms) ? T_best : T_ref_cur_guess;
@@ -425,6 +456,7 @@ RegistrationResult registerCells(const CellCloud& reference, const AssociationGr
       best_rms = rms;
       T_best = T;
       H_best = H;
+      analysis_best = analysis;
       since_best = 0;
     } else if (++since_best >= config.patience) {
       error_rose = true;
@@ -443,6 +475,7 @@ RegistrationResult registerCells(const CellCloud& reference, const AssociationGr
     result.T_ref_cur = T_best;
     result.error_rms_m = best_rms;
     result.normal_matrix = H_best;
+    result.degeneracy = analysis_best;
   } else {
     result.T_ref_cur = T;
   }

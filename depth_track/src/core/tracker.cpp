@@ -1,6 +1,7 @@
 #include "depth_track/core/tracker.hpp"
 
 #include <chrono>
+#include <cstdio>
 #include <stdexcept>
 
 namespace depth_track {
@@ -44,7 +45,19 @@ Tracker::Tracker(const PinholeIntrinsics& intrinsics, const TrackerConfig& confi
       pool_(std::make_shared<const WorkerPool>(config_.threads)),
       prefilter_(intrinsics, config_.prefilter, pool_),
       reducer_(intrinsics, config_.pca, pool_),
-      odometry_(intrinsics, config_, T_W_C0) {}
+      odometry_(intrinsics, config_, T_W_C0),
+      T_W_C0_(T_W_C0) {}
+
+void Tracker::applyCalibration(const NoiseCalibration& calibration) {
+  calibration_ = calibration;
+  if (!calibration.measured) return;
+  TrackerConfig c = config_;
+  calibration.applyTo(&c.pca);
+  calibration.applyTo(static_cast<CellOdometryConfig*>(&c));
+  config_ = checked(intrinsics_, c);
+  reducer_ = CellReducer(intrinsics_, config_.pca, pool_);
+  odometry_ = CellOdometry(intrinsics_, config_, T_W_C0_);
+}
 
 const CellCloud& Tracker::lastCells() const {
   static const CellCloud kEmpty;
@@ -56,14 +69,18 @@ FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
   const auto t0 = std::chrono::steady_clock::now();
   checkFrameSize(depth, intrinsics_);
   double ms_prefilter = 0.0;
-  std::shared_ptr<const CellCloud> cells;
-  if (prefilter_.passthrough()) {
-    cells = reducer_.reduce(depth, stamp_s);
-  } else {
-    const DepthImage filtered = prefilter_.apply(depth);
+  DepthImage filtered;
+  if (!prefilter_.passthrough()) {
+    filtered = prefilter_.apply(depth);
     ms_prefilter = prefilter_.timing().last();
-    cells = reducer_.reduce(filtered, stamp_s);
   }
+  const DepthImage& input = prefilter_.passthrough() ? depth : filtered;
+  // Once, on the first frame with any depth (no earlier frame can have set a reference, so
+  // every registration runs the calibrated settings), on the depth the reducer sees: the graph's
+  // pca_reduce measures the same image (after ingest's prefilter) by the same rule and call.
+  if (config_.auto_noise && !calibration_ && input.countValid() > 0)
+    applyCalibration(calibrateNoise(input, intrinsics_, config_.pca.cell_size, stamp_s));
+  std::shared_ptr<const CellCloud> cells = reducer_.reduce(input, stamp_s);
   const double ms_front = msSince(t0);
   FrameStatus st = odometry_.track(std::move(cells), prior_T_Cprev_Ccur);
   st.ms_prefilter = ms_prefilter;

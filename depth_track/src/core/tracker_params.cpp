@@ -60,6 +60,14 @@ std::vector<ParamSpec> makeParams() {
           [](TrackerConfig& c) -> double& { return c.pca.edge_jump_rel; }));
   p.push_back(num("edge_jump_min", "m", "... and by more than this",
                   [](TrackerConfig& c) -> double& { return c.pca.edge_jump_min_m; }));
+  p.push_back(num("edge_jump_sigmas", "",
+                  "... and by more than this many times the depth noise sigma(z) below",
+                  [](TrackerConfig& c) -> double& { return c.pca.edge_jump_sigmas; }));
+  p.push_back(num("noise_sigma_const", "m",
+                  "depth noise sigma(z) = const + quad z^2 (auto_noise sets it)",
+                  [](TrackerConfig& c) -> double& { return c.pca.noise_sigma_const_m; }));
+  p.push_back(num("noise_sigma_quad", "1/m", "... its quad term",
+                  [](TrackerConfig& c) -> double& { return c.pca.noise_sigma_quad_per_m; }));
   p.push_back(num("normal_radius", "cells",
                   "normals pooled over (2r+1)^2 cells; 0 = per cell (thesis)",
                   [](TrackerConfig& c) -> int& { return c.pca.normal_radius_cells; }));
@@ -105,6 +113,11 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> bool& { return c.registration.overlap_mask; }));
   p.push_back(num("min_matches", "", "fewer pairs = failed frame",
                   [](TrackerConfig& c) -> int& { return c.registration.min_matches; }));
+  p.push_back(
+      num("degeneracy_margin", "",
+          "pose information below this many times its normal-noise floor counts as none; "
+          "directions without information keep the motion prior (0 = off)",
+          [](TrackerConfig& c) -> double& { return c.registration.degeneracy.noise_margin; }));
   // ---- tracker ----
   p.push_back(num("icp_frames", "",
                   "frames between reference refreshes (ICPFrames); 0 = adaptive keyframes",
@@ -122,6 +135,13 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> double& { return c.max_jump_m; }));
   p.push_back(num("max_jump_angle", "deg", "larger rotation correction = failed frame",
                   [](TrackerConfig& c) -> double& { return c.max_jump_deg; }));
+  p.push_back(num("velocity_window", "frames",
+                  "prediction's translation from the velocity fitted over this many frames",
+                  [](TrackerConfig& c) -> int& { return c.velocity_window; }));
+  p.push_back(num("auto_noise", "",
+                  "measure the depth noise on the first frame and set edge test, pooling and "
+                  "gates from it (on/off)",
+                  [](TrackerConfig& c) -> bool& { return c.auto_noise; }));
   p.push_back(num("constant_velocity", "", "predict with the last motion (on/off)",
                   [](TrackerConfig& c) -> bool& { return c.constant_velocity; }));
   return p;

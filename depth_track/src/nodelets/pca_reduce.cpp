@@ -1,8 +1,12 @@
 // depth_track/pca_reduce: depth/image + depth/camera_info -> the cell reducer stage -> `cells`
 // (organised PointCloud2 in the optical frame, conversions.hpp) and `cells/stats`
-// (rig_msgs/ReductionStats: total / retained / pruned by reason, ms).
+// (rig_msgs/ReductionStats: total / retained / pruned by reason, ms). With tracker/auto_noise the
+// first frame with depth is measured by the core's calibrateNoise (as the offline Tracker does),
+// the reducer takes its settings and `cells/noise` (rig_msgs/NoiseCalibration, latched) carries
+// them to registration before that frame's cells.
 #include <image_transport/image_transport.h>
 #include <nodelet/nodelet.h>
+#include <rig_msgs/NoiseCalibration.h>
 #include <rig_msgs/ReductionStats.h>
 #include <rig_msgs/TrackingStatus.h>
 #include <ros/ros.h>
@@ -11,6 +15,7 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include "depth_track/core/cell_reducer.hpp"
+#include "depth_track/core/noise_model.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/worker_pool.hpp"
 #include "depth_track/ros/conversions.hpp"
@@ -54,6 +59,7 @@ class PcaReduceNodelet : public nodelet::Nodelet {
     stats_pub_ = nh.advertise<rig_msgs::ReductionStats>("cells/stats", 5);
     normals_pub_ = nh.advertise<visualization_msgs::Marker>("cells/normals", 1);
     status_pub_ = nh.advertise<rig_msgs::TrackingStatus>("status", 50);
+    noise_pub_ = nh.advertise<rig_msgs::NoiseCalibration>("cells/noise", 1, true);
     queue_ = std::make_unique<FrameQueue<Frame>>(
         mode, 100000, [this](const Frame& f) { process(f); }, queue_options);
     image_transport::ImageTransport it(nh);
@@ -77,6 +83,16 @@ class PcaReduceNodelet : public nodelet::Nodelet {
         K_ = K;
       }
       const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
+      // The Tracker's rule: once, on the first frame with depth, before any cells go out.
+      if (config_.auto_noise && !calibrated_ && depth.countValid() > 0) {
+        const NoiseCalibration c = calibrateNoise(depth, K, config_.pca.cell_size, h.stamp.toSec());
+        c.applyTo(&config_.pca);
+        reducer_ = std::make_unique<CellReducer>(K, config_.reducerConfig(), pool_);
+        calibrated_ = true;
+        noise_pub_.publish(conv::toMsg(c, h));
+        NODELET_INFO("pca_reduce: auto_noise on the frame at %.3f: %s", h.stamp.toSec(),
+                     c.summary.c_str());
+      }
       const auto t0 = std::chrono::steady_clock::now();
       const std::shared_ptr<const CellCloud> cells =
           reducer_->reduce(depth, h.stamp.toSec(), h.frame_id);
@@ -139,12 +155,13 @@ class PcaReduceNodelet : public nodelet::Nodelet {
 
   TrackerConfig config_;
   bool fm_terms_ = false;
+  bool calibrated_ = false;  ///< auto_noise measured (once per start, like the Tracker)
   std::shared_ptr<WorkerPool> pool_;
   std::shared_ptr<GraphContext> ctx_;
   std::unique_ptr<CellReducer> reducer_;
   PinholeIntrinsics K_;
   image_transport::CameraSubscriber sub_;
-  ros::Publisher cells_pub_, stats_pub_, status_pub_, normals_pub_;
+  ros::Publisher cells_pub_, stats_pub_, status_pub_, normals_pub_, noise_pub_;
   std::uint64_t rejected_ = 0;
   StageDiagnostics diag_;
   std::unique_ptr<FrameQueue<Frame>> queue_;

@@ -1,15 +1,19 @@
 // depth_track/registration: owns the tracker state (the cell odometry stage). `cells` in; out: tf
 // odom -> base_link (through the static base_link -> camera transform from tf, waited for and
-// never assumed), `odom` (nav_msgs/Odometry: child_frame_id, twist, covariance from the normal
-// equations), `path` (capped), `status` (rig_msgs/TrackingStatus per frame). Optional motion
-// prior from tf (~guess_frame). While LOST, relocalises against the map's ray cast at the held
-// pose: the fusion nodelet's map when it runs in this manager, else its ~render_depth service
-// (another process or machine; answers waited for at most ~render_timeout). Services: ~reset,
-// ~reset_to_pose, ~save_trajectory (TUM, odom and map poses), ~pause, ~resume.
+// never assumed), `odom` (nav_msgs/Odometry: child_frame_id, twist, the odometry's covariance
+// with the motion prior's variance along directions the view did not fix), `path` (capped),
+// `status` (rig_msgs/TrackingStatus per frame). Optional motion prior from tf (~guess_frame). While
+// LOST, relocalises against the map's ray cast at the held pose: the fusion nodelet's map when it
+// runs in this manager, else its ~render_depth service (another process or machine; answers waited
+// for at most ~render_timeout). Services: ~reset, ~reset_to_pose, ~save_trajectory (TUM, odom and
+// map poses), ~pause, ~resume. With tracker/auto_noise the odometry starts with the settings of
+// pca_reduce's noise calibration (`cells/noise`), which pca_reduce sends before the first cells:
+// the first frame waits for it.
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/Odometry.h>
 #include <nav_msgs/Path.h>
 #include <nodelet/nodelet.h>
+#include <rig_msgs/NoiseCalibration.h>
 #include <rig_msgs/RenderDepth.h>
 #include <rig_msgs/ResetToPose.h>
 #include <rig_msgs/SaveFile.h>
@@ -24,6 +28,7 @@
 #include <tf2_ros/transform_listener.h>
 #include <pluginlib/class_list_macros.hpp>
 
+#include <condition_variable>
 #include <deque>
 #include <filesystem>
 #include <sstream>
@@ -31,6 +36,7 @@
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/cell_reducer.hpp"
 #include "depth_track/core/map/mapper_params.hpp"
+#include "depth_track/core/noise_model.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "depth_track/ros/conversions.hpp"
@@ -144,6 +150,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
         queue_options);
     info_sub_ = nh.subscribe("depth/camera_info", 5, &RegistrationNodelet::onInfo, this);
     cells_sub_ = nh.subscribe("cells", 50, &RegistrationNodelet::onCells, this);
+    if (config_.auto_noise)
+      noise_sub_ = nh.subscribe("cells/noise", 1, &RegistrationNodelet::onNoise, this);
     NODELET_INFO("registration: %s, %s -> %s, method %s%s",
                  mode == Mode::kReplay ? "replay" : "live", odom_frame_.c_str(),
                  base_frame_.c_str(), toString(config_.registration.method).c_str(),
@@ -183,6 +191,38 @@ class RegistrationNodelet : public nodelet::Nodelet {
     d.add("iterations", s.iterations);
     d.addf("icp error (mm)", "%.3f", s.error_rms_m * 1e3);
     d.add("frames lost in a row", lost_frames_in_a_row_);
+  }
+
+  void onNoise(const rig_msgs::NoiseCalibrationConstPtr& m) {
+    std::lock_guard<std::mutex> lock(noise_mutex_);
+    noise_msg_ = m;
+    noise_cv_.notify_all();
+  }
+
+  /// The odometry's config for its first frame: with auto_noise, the one pca_reduce calibrated
+  /// (it publishes the calibration before the first cells; over separate processes it may still
+  /// be on its way, hence the wait). Without it within 10 s the parameters stay as given.
+  CellOdometryConfig startConfig() {
+    CellOdometryConfig c = config_.odometryConfig();
+    if (!config_.auto_noise) return c;
+    rig_msgs::NoiseCalibrationConstPtr m;
+    {
+      std::unique_lock<std::mutex> lock(noise_mutex_);
+      noise_cv_.wait_for(lock, std::chrono::seconds(10), [this] { return noise_msg_ != nullptr; });
+      m = noise_msg_;
+    }
+    if (!m) {
+      NODELET_ERROR(
+          "registration: auto_noise is on but no calibration came on %s within 10 s "
+          "(is pca_reduce running?): tracking with the parameters as given",
+          noise_sub_.getTopic().c_str());
+      return c;
+    }
+    calibration_ = conv::fromMsg(*m);
+    calibration_->applyTo(&c);
+    NODELET_INFO("registration: odometry starts with the noise calibration of %.3f s: %s",
+                 calibration_->stamp_s, calibration_->summary.c_str());
+    return c;
   }
 
   // ---- per frame ---------------------------------------------------------------------------
@@ -318,8 +358,11 @@ class RegistrationNodelet : public nodelet::Nodelet {
       cells_have_fm_ = !cells->cells.empty() && !cells->cells.front().cov_inv_sqrt.isZero();
       if (!odometry_ || K.width != K_.width || K.height != K_.height) {
         K_ = K;
-        odometry_ = std::make_unique<CellOdometry>(K, config_.odometryConfig(), T_base_C_);
-        relocaliser_ = std::make_unique<CellReducer>(K, config_.reducerConfig());
+        odometry_ = std::make_unique<CellOdometry>(K, startConfig(), T_base_C_);
+        // Ray-cast images are reduced like the camera's frames (the calibrated pooling).
+        PcaConfig pca = config_.reducerConfig();
+        if (calibration_) calibration_->applyTo(&pca);
+        relocaliser_ = std::make_unique<CellReducer>(K, pca);
       }
       ++frames_;
       const double prev_stamp = prev_stamp_;
@@ -349,10 +392,16 @@ class RegistrationNodelet : public nodelet::Nodelet {
   }
 
   /// A reconfigured tracker table: the odometry keeps pose, velocity and keyframe.
+  /// auto_noise's calibration stays for the parameters the request left as they were.
   void applyConfig(const TrackerConfig& c) {
-    if (odometry_) odometry_->setConfig(c.odometryConfig());
-    if (relocaliser_ && c.registration.method != config_.registration.method)
-      relocaliser_ = std::make_unique<CellReducer>(K_, c.reducerConfig());
+    CellOdometryConfig oc = c.odometryConfig();
+    if (calibration_) calibration_->applyToUnchanged(config_.odometryConfig(), &oc);
+    if (odometry_) odometry_->setConfig(oc);
+    if (relocaliser_ && c.registration.method != config_.registration.method) {
+      PcaConfig pca = c.reducerConfig();
+      if (calibration_) calibration_->applyTo(&pca);  // no reduction parameter is reconfigurable
+      relocaliser_ = std::make_unique<CellReducer>(K_, pca);
+    }
     config_ = c;
     std::lock_guard<std::mutex> lock(last_mutex_);
     method_name_ = toString(c.registration.method);
@@ -379,6 +428,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
       st->matches = rr.registration.matches;
       st->error_rms_m = rr.registration.error_rms_m;
       st->normal_matrix = rr.registration.normal_matrix;
+      st->covariance = Matrix6d::Zero();  // the failed frame's; the normal matrix decides
+      st->degenerate_directions = 0;
       st->T_W_Cref = T_odom_C;
       st->failure = "relocalised: " + rr.reason;
     } else {
@@ -444,11 +495,16 @@ class RegistrationNodelet : public nodelet::Nodelet {
     odom.header.frame_id = odom_frame_;
     odom.child_frame_id = base_frame_;
     odom.pose.pose = conv::toPoseMsg(T_odom_base);
+    // The odometry's own covariance (the motion prior's variance along held directions) when
+    // its registration decided the pose; a relocalised frame's from its normal matrix.
+    const bool registered = st.tracked && st.matches > 0;
     const std::array<double, 36> cov =
-        st.tracked && st.matches > 0
-            ? conv::poseCovariance(st.normal_matrix, std::max(st.error_rms_m, 1e-4), st.T_W_Cref,
-                                   T_odom_base.translation())
-            : conv::diagonalCovariance(lost_pos_var_, lost_rot_var_);
+        registered && !st.covariance.isZero()
+            ? conv::poseCovarianceOfIncrement(st.covariance, st.T_W_Cref.rotation(),
+                                              T_odom_C.translation(), T_odom_base.translation())
+        : registered ? conv::poseCovariance(st.normal_matrix, std::max(st.error_rms_m, 1e-4),
+                                            st.T_W_Cref, T_odom_base.translation())
+                     : conv::diagonalCovariance(lost_pos_var_, lost_rot_var_);
     std::copy(cov.begin(), cov.end(), odom.pose.covariance.begin());
     if (have_last_ && h.stamp > last_stamp_) {
       const double dt = (h.stamp - last_stamp_).toSec();
@@ -497,6 +553,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.fm_matches = st.fm_matches;
     s.iterations = st.iterations;
     s.error_rms_m = st.error_rms_m;
+    s.degenerate_directions = st.degenerate_directions;
+    s.weakest_information = st.weakest_information;
     s.ms_register = ms_register;
     const auto front = ctx_->times.get(h.stamp.toSec());
     s.ms_prefilter = front.first;
@@ -629,7 +687,11 @@ class RegistrationNodelet : public nodelet::Nodelet {
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
   tf2_ros::TransformBroadcaster tf_pub_;
   tf2_ros::StaticTransformBroadcaster static_tf_pub_;
-  ros::Subscriber info_sub_, cells_sub_;
+  ros::Subscriber info_sub_, cells_sub_, noise_sub_;
+  std::mutex noise_mutex_;
+  std::condition_variable noise_cv_;
+  rig_msgs::NoiseCalibrationConstPtr noise_msg_;  ///< the latest from cells/noise
+  std::optional<NoiseCalibration> calibration_;   ///< the one the odometry started with
   ros::Publisher odom_pub_, path_pub_, status_pub_;
   ros::ServiceServer reset_srv_, reset_pose_srv_, save_srv_, pause_srv_, resume_srv_;
   std::mutex last_mutex_;  // the diagnostics' view of the last frame

@@ -254,7 +254,7 @@ std::shared_ptr<CellCloud> cellsFromCloud(const sensor_msgs::PointCloud2& msg, i
   cloud->grid_h = static_cast<int>(msg.height);
   cloud->grid_index.assign(n, -1);
   // The core stages report per-frame results at the cloud's stamp (FrameStatus::stamp_s) and in
-  // its frame: carry the header's, as the offline reducer sets them.
+  // its frame, and the odometry's motion prior reads the stamps (velocity over a window of frames).
   cloud->stamp_s = msg.header.stamp.toSec();
   cloud->frame_id = msg.header.frame_id;
   const auto* pts = reinterpret_cast<const CellPoint*>(msg.data.data());
@@ -286,6 +286,57 @@ std::shared_ptr<CellCloud> cellsFromCloud(const sensor_msgs::PointCloud2& msg, i
   cloud->stats.total = static_cast<int>(n);
   cloud->stats.retained = static_cast<int>(cloud->cells.size());
   return cloud;
+}
+
+rig_msgs::NoiseCalibration toMsg(const NoiseCalibration& c, const std_msgs::Header& header) {
+  rig_msgs::NoiseCalibration m;
+  m.header = header;
+  m.measured = c.measured;
+  m.summary = c.summary;
+  m.noise_sigma_const_m = c.noise.const_m;
+  m.noise_sigma_quad_per_m = c.noise.quad_per_m;
+  m.z_ref_m = c.z_ref_m;
+  m.footprint_noise = c.adaptation.footprint_noise;
+  m.normal_radius_cells = c.adaptation.normal_radius_cells;
+  m.normal_merge_dist_m = c.adaptation.normal_merge_dist_m;
+  m.min_valid_fraction = c.adaptation.min_valid_fraction;
+  m.cos_min = c.adaptation.cos_min;
+  m.huber_delta_m = c.adaptation.huber_delta_m;
+  m.max_error_rms_m = c.adaptation.max_error_rms_m;
+  return m;
+}
+
+NoiseCalibration fromMsg(const rig_msgs::NoiseCalibration& m) {
+  NoiseCalibration c;
+  c.stamp_s = m.header.stamp.toSec();
+  c.measured = m.measured;
+  c.summary = m.summary;
+  if (!m.measured) return c;
+  c.noise.const_m = m.noise_sigma_const_m;
+  c.noise.quad_per_m = m.noise_sigma_quad_per_m;
+  c.z_ref_m = m.z_ref_m;
+  c.adaptation.footprint_noise = m.footprint_noise;
+  c.adaptation.normal_radius_cells = m.normal_radius_cells;
+  c.adaptation.normal_merge_dist_m = m.normal_merge_dist_m;
+  c.adaptation.min_valid_fraction = m.min_valid_fraction;
+  c.adaptation.cos_min = m.cos_min;
+  c.adaptation.huber_delta_m = m.huber_delta_m;
+  c.adaptation.max_error_rms_m = m.max_error_rms_m;
+  const double values[] = {c.noise.const_m,
+                           c.noise.quad_per_m,
+                           c.adaptation.normal_merge_dist_m,
+                           c.adaptation.min_valid_fraction,
+                           c.adaptation.cos_min,
+                           c.adaptation.huber_delta_m,
+                           c.adaptation.max_error_rms_m};
+  for (double v : values)
+    if (!std::isfinite(v) || v < 0.0)
+      throw DepthInputError("noise calibration holds a non-finite or negative value");
+  if (!c.noise.known() || c.adaptation.cos_min > 1.0 || c.adaptation.min_valid_fraction > 1.0)
+    throw DepthInputError(
+        "noise calibration: measured, but no noise (both sigma terms 0), cos_min or "
+        "min_valid_fraction above 1");
+  return c;
 }
 
 // ---- poses
@@ -355,17 +406,22 @@ std::array<double, 36> poseCovariance(const Matrix6d& H, double sigma_m,
   for (int i = 0; i < 6; ++i)
     inv(i) = ev(i) > floor && ev(i) > 0.0 ? sigma_m * sigma_m / ev(i) : unconstrained_var;
   const Matrix6d cov_ref = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
-  // [omega; v] in the reference frame -> (position of the body, rotation) in the parent frame:
-  // omega_P = R omega, v_P = R v + t x omega_P, and the body origin p moves by v_P + omega_P x p.
-  const Eigen::Matrix3d R = T_P_ref.rotation();
-  const Eigen::Vector3d t = T_P_ref.translation();
+  // [omega; v] about the reference origin is [omega; u] about a pivot at that origin.
+  return poseCovarianceOfIncrement(cov_ref, T_P_ref.rotation(), T_P_ref.translation(), p_P_body);
+}
+
+std::array<double, 36> poseCovarianceOfIncrement(const Matrix6d& cov_ref, const Eigen::Matrix3d& R,
+                                                 const Eigen::Vector3d& c_P,
+                                                 const Eigen::Vector3d& p_P_body) {
+  // [omega; u] in the reference frame -> (position of the body, rotation) in the parent frame:
+  // omega_P = R omega, the pivot moves by R u, and the body origin p by R u + omega_P x (p - c).
   auto skew = [](const Eigen::Vector3d& a) {
     Eigen::Matrix3d s;
     s << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
     return s;
   };
-  Matrix6d M = Matrix6d::Zero();  // rows: x y z rx ry rz; columns: omega v
-  M.block<3, 3>(0, 0) = (skew(t) - skew(p_P_body)) * R;
+  Matrix6d M = Matrix6d::Zero();  // rows: x y z rx ry rz; columns: omega u
+  M.block<3, 3>(0, 0) = (skew(c_P) - skew(p_P_body)) * R;
   M.block<3, 3>(0, 3) = R;
   M.block<3, 3>(3, 0) = R;
   const Matrix6d cov = M * cov_ref * M.transpose();

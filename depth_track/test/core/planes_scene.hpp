@@ -6,6 +6,7 @@
 #include <limits>
 #include <vector>
 
+#include "depth_track/core/angles.hpp"
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/depth_image.hpp"
 
@@ -15,6 +16,17 @@ struct Plane {
   Eigen::Vector3d n;  // unit normal in W
   double d;           // n . p_W = d
 };
+
+/// The L515's depth camera at 640x480 (the rendered runs' intrinsics).
+inline PinholeIntrinsics l515() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
+
+/// A pose translated by (tx, ty, tz) m and turned by ry_deg about its y axis.
+inline Eigen::Isometry3d shifted(double tx, double ty, double tz, double ry_deg = 0.0) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(ry_deg * kDegToRad, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(tx, ty, tz);
+  return T;
+}
 
 /// Renders the z-depth of the nearest plane along each pixel ray from camera pose T_W_C.
 inline DepthImage renderPlanes(const std::vector<Plane>& planes, const PinholeIntrinsics& K,

@@ -265,17 +265,31 @@ TEST(LoopClosure, TrackerOnRt3DriftsLessWithLoopClosure) {
 
 TEST(LoopClosure, TrackerOnRoom3DriftsLessWithLoopClosure) {
   // The truck circles a furnished room twice; the map is unbounded (the camera looks all
-  // around). Measured: end drift 77 -> 18 mm, max position errors 29/62/35 -> 9/27/24 mm, max
-  // rotation errors 0.48/1.92/0.43 -> 0.38/0.88/0.38 deg (28 of 88 attempts accepted). Roll has
-  // the smallest margin: the frame-to-frame roll drift is close to the precision with which a
-  // 5 mm map fixes the rotation about the optical axis (at full resolution it ended at 0.45).
+  // around). Measured (noise seed 1): end drift 77 -> 19 mm, max position errors 29/62/35 ->
+  // 9/27/25 mm, max rotation errors 0.48/1.92/0.43 -> 0.38/0.87/0.42 deg (28 of 88 attempts
+  // accepted).
   const TrackedPair r = trackWithAndWithoutLoopClosure("room3", false);
   expectAttemptsAndAccepted(r, 25, 31);
   EXPECT_LT(r.closed.end_drift_mm, 0.5 * r.open.end_drift_mm);
   for (int a = 0; a < 3; ++a)
     EXPECT_LT(r.closed.max_err_mm[a], r.open.max_err_mm[a]) << "position axis " << a;
-  for (int a = 0; a < 3; ++a)
+  for (int a = 0; a < 2; ++a)
     EXPECT_LT(r.closed.max_err_deg[a], r.open.max_err_deg[a]) << "rotation axis " << a;
+  // Roll (about the first view's optical axis) is where loop closure does not help on this run:
+  // the open-loop roll drift (0.43-0.45 deg) is no larger than the precision of the corrections
+  // about that axis: on the second lap four corrections in a row moved the roll error -0.23 ->
+  // +0.05 -> +0.42 -> +0.06 deg (residuals 5-6 mm; 1.5-3.8 mm in the corrections around them).
+  // Whether the closed run's largest roll error ends below the open run's is then up to the noise:
+  // closed vs open with the seeds 1 to 4 (DT_TEST_SEED, 2026-12-02) 0.424/0.425, 0.474/0.425,
+  // 0.459/0.450, 0.459/0.425 deg, and on main before this step (a2e6f3a) 0.376/0.426,
+  // 0.474/0.425, 0.460/0.452 deg: the margin "closed < open" had there with seed 1 was luck
+  // (seeds 2 and 3 failed it on main too). Pitch and yaw (0.38-0.40 / 0.87-0.91 against
+  // 0.47-0.49 / 1.91-1.94 deg over the seeds) and the position errors keep "closed < open". What is
+  // asserted for roll is that closure does not cost roll beyond what the map resolves (the
+  // correction dead band, 0.1 deg; the worst excess measured is 0.05 deg): the thesis's accelerated
+  // drift would break it.
+  EXPECT_LT(r.closed.max_err_deg[2], r.open.max_err_deg[2] + LoopClosureConfig().deadband_deg)
+      << "roll";
 }
 
 // Half-resolution loop closure (virtual image cast at 320x240, 5-px cells on both images) against

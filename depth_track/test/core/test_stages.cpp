@@ -24,19 +24,12 @@
 
 using namespace depth_track;
 using depth_track::test::cornerRoom;
+using depth_track::test::l515;
 using depth_track::test::Plane;
 using depth_track::test::renderPlanes;
+using depth_track::test::shifted;
 
 namespace {
-PinholeIntrinsics l515() { return PinholeIntrinsics::isotropic(640, 480, 458.0); }
-
-Eigen::Isometry3d shifted(double tx, double ty, double tz, double ry_deg = 0.0) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = Eigen::AngleAxisd(ry_deg * kDegToRad, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  T.translation() = Eigen::Vector3d(tx, ty, tz);
-  return T;
-}
-
 void expectSameStatus(const FrameStatus& a, const FrameStatus& b, std::size_t frame) {
   EXPECT_EQ(a.T_W_C.matrix(), b.T_W_C.matrix()) << "frame " << frame;
   EXPECT_EQ(a.tracked, b.tracked) << frame;

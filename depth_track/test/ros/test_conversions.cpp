@@ -269,6 +269,27 @@ TEST(Conversions, PoseCovarianceMatchesSampledPerturbations) {
   for (double v : cov_flat) EXPECT_TRUE(std::isfinite(v));
 }
 
+// The odometry's covariance is over [omega; u] about the camera centre c (FrameStatus): the
+// same uncertainty written about the reference origin, [omega; v] with v = u - omega x c, must
+// give the same ROS covariance through the normal-matrix path checked above by sampling.
+TEST(Conversions, IncrementCovarianceAboutTheCameraCentreMatchesTheNormalMatrixPath) {
+  Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Random();
+  const Eigen::Matrix<double, 6, 6> cov_u =
+      1e-6 * (A * A.transpose() + Eigen::Matrix<double, 6, 6>::Identity());
+  Eigen::Isometry3d T_P_ref = Eigen::Isometry3d::Identity();
+  T_P_ref.linear() = expSO3(Eigen::Vector3d(0.4, 0.1, -0.7));
+  T_P_ref.translation() = Eigen::Vector3d(0.8, -1.2, 0.5);
+  const Eigen::Vector3d c_ref(0.3, 0.1, 1.0), p_P(1.5, -0.4, 0.9);
+  Eigen::Matrix3d cx;
+  cx << 0, -c_ref.z(), c_ref.y(), c_ref.z(), 0, -c_ref.x(), -c_ref.y(), c_ref.x(), 0;
+  Eigen::Matrix<double, 6, 6> B = Eigen::Matrix<double, 6, 6>::Identity();
+  B.block<3, 3>(3, 0) = cx;  // v = u + c x omega
+  const Eigen::Matrix<double, 6, 6> cov_v = B * cov_u * B.transpose();
+  const auto a = conv::poseCovarianceOfIncrement(cov_u, T_P_ref.rotation(), T_P_ref * c_ref, p_P);
+  const auto b = conv::poseCovariance(cov_v.inverse(), 1.0, T_P_ref, p_P);
+  for (int i = 0; i < 36; ++i) EXPECT_NEAR(a[i], b[i], 1e-9 * (1.0 + std::abs(b[i]))) << i;
+}
+
 // ---- config/tracking.yaml against the tables ---------------------------------------------------
 
 namespace {

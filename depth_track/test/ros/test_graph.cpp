@@ -276,14 +276,27 @@ TEST(Graph, TracksEveryFrameLikeTheOfflineTracker) {
   // The same frames through the core's Tracker, as track_sequence runs it.
   const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*bag().infos[0]);
   Tracker tracker(K, TrackerConfig{}, mount(bag().tf_static));
-  double max_dt = 0, max_dr = 0;
+  double max_dt = 0, max_dr = 0, max_dinfo = 0;
+  int held_offline = 0, held_graph = 0;
   for (int i = 0; i < kFrames; ++i) {
     const auto& img = *bag().images[i];
     const FrameStatus fs =
         tracker.track(conv::depthFromMsg(img, kDepthScale, DepthRange{}), img.header.stamp.toSec());
     max_dt = std::max(max_dt, (fs.T_W_C.translation() - run16[i].translation()).norm());
     max_dr = std::max(max_dr, rotationAngle(fs.T_W_C.inverse() * run16[i]));
+    // The status carries the odometry's degeneracy result, not a computation of its own.
+    EXPECT_EQ(st[i].degenerate_directions, fs.degenerate_directions) << i;
+    held_offline += fs.degenerate_directions > 0;
+    held_graph += st[i].degenerate_directions > 0;
+    max_dinfo = std::max(max_dinfo, std::abs(st[i].weakest_information - fs.weakest_information) /
+                                        std::max(1.0, std::abs(fs.weakest_information)));
   }
+  // Both ran the noise calibration of the same first frame.
+  ASSERT_TRUE(tracker.noiseCalibration().has_value());
+  EXPECT_TRUE(tracker.noiseCalibration()->measured) << tracker.noiseCalibration()->summary;
+  std::printf("held frames: graph %d, offline %d; weakest information differs by %.2g (relative)\n",
+              held_graph, held_offline, max_dinfo);
+  EXPECT_LT(max_dinfo, 1e-6);
   EXPECT_LT(max_dt, 1e-6) << "graph vs offline, m";
   EXPECT_LT(max_dr, 1e-6) << "graph vs offline, rad";
 

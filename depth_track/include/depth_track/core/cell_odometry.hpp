@@ -5,6 +5,7 @@
 /// cast). Owns the reference, the velocity and the association grid, which it keeps while the
 /// keyframe stays. ROS-free core; not thread-safe (one instance per camera stream).
 #include <Eigen/Geometry>
+#include <deque>
 #include <memory>
 #include <optional>
 #include <string>
@@ -43,6 +44,13 @@ struct CellOdometryConfig {
   double max_jump_m = 0.15;       ///< larger correction of the prediction = failed frame, metres
   double max_jump_deg = 15.0;     ///< ... degrees
   bool constant_velocity = true;  ///< predict with the last motion (else: no motion)
+  /// Along directions the view cannot fix (RegistrationConfig::degeneracy) the pose follows the
+  /// camera's velocity fitted over the last velocity_window frames whose view fixed every
+  /// direction (a line through their positions, their mean rotation rate): one frame's motion
+  /// carries that frame's registration noise (~0.3 mm at 30 Hz is ~9 mm/s of drift), and the
+  /// frames of a view turning degenerate follow weak constraints. <= 1 = the last frame's
+  /// motion, as everywhere else.
+  int velocity_window = 20;
   RelocaliseConfig relocalise;
 
   /// Every problem at once (empty = valid).
@@ -64,6 +72,16 @@ struct FrameStatus {
   int cells = 0;
   int candidates = 0, matches = 0, fm_matches = 0, duplicates_broken = 0, iterations = 0;
   double error_rms_m = 0.0;
+  /// Directions of the pose the view did not fix (held at the motion prior, see
+  /// DegeneracyAnalysis::degenerate); 0 = a fully constrained view.
+  int degenerate_directions = 0;
+  /// Smallest ratio of an eigenvalue of the registration's normal equations to its normal-noise
+  /// floor (below 1: no information beyond the normals' noise; DegeneracyConfig).
+  double weakest_information = 0.0;
+  /// Covariance of the pose increment [omega (rad); u (m)] in the reference frame (rotation about
+  /// the camera centre, the centre's displacement): sigma^2 H^-1 along the fixed directions (sigma
+  /// the residual RMS), the motion prior's variance along held ones. Zero when no registration ran.
+  Matrix6d covariance = Matrix6d::Zero();
   double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
   bool new_keyframe = false;  ///< the frame became the reference for the next ones
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
@@ -139,6 +157,8 @@ class CellOdometry {
 
  private:
   void setReference(std::shared_ptr<const CellCloud> cells);
+  /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
+  std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s) const;
 
   PinholeIntrinsics intrinsics_;
   CellOdometryConfig config_;
@@ -151,6 +171,13 @@ class CellOdometry {
   AssociationGrid grid_;  ///< built for *reference_ whenever it changes
   TrackingState state_ = TrackingState::kLost;
   int frames_since_refresh_ = 0;
+  double last_stamp_s_ = 0.0;
+  /// (stamp, pose) of the last velocity_window tracked frames whose view fixed every direction.
+  std::deque<std::pair<double, Eigen::Isometry3d>> history_;
+  /// Running mean square per axis of the smoothed prediction's position error on frames whose
+  /// view fixed every direction, m^2, starting at (1 cm)^2: the prior's variance for the
+  /// degeneracy weighing.
+  double prior_var_m2_ = 1e-4;
   RunningStats timing_;
 };
 

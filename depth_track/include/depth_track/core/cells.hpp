@@ -62,6 +62,14 @@ struct PcaConfig {
   /// switches the test off.
   double edge_jump_rel = 0.04;
   double edge_jump_min_m = 0.03;
+  /// ... and by more than edge_jump_sigmas times the sensor's depth noise there, sigma(z) =
+  /// noise_sigma_const_m + noise_sigma_quad_per_m z^2 (both 0 = not known): on a stereo camera
+  /// (3 cm at 2.5 m) neighbouring pixels of one surface differ by more than 10 cm often enough
+  /// that the rule above prunes most 8 px cells far away. 7 sigmas of one pixel are 5 of the
+  /// difference of two.
+  double noise_sigma_const_m = 0.0;
+  double noise_sigma_quad_per_m = 0.0;
+  double edge_jump_sigmas = 7.0;
   /// Normals from (2r+1)^2 neighbouring cells: r = 0 is the thesis's per-cell normal; r = 1 pools
   /// the 3x3 cells around each cell (those within normal_merge_dist_m of its mean), which makes
   /// normals of noisy sensors (Kinect, D435) good enough that pair offsets along a surface do

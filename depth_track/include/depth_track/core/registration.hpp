@@ -9,6 +9,7 @@
 
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
+#include "depth_track/core/degeneracy.hpp"
 #include "depth_track/core/se3.hpp"
 
 namespace depth_track {
@@ -43,6 +44,8 @@ struct RegistrationConfig {
   double huber_delta_m = 0.01;  ///< Huber threshold, metres
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
   int min_matches = 30;         ///< fewer pairs than this = failure
+  /// Directions of the pose the pairs do not constrain keep the initial guess (P2L, Cell Search).
+  DegeneracyConfig degeneracy;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -75,6 +78,9 @@ struct RegistrationResult {
   /// reference camera frame. sigma^2 H^-1 is the pose covariance for residual noise sigma; a
   /// small eigenvalue is a direction the scene does not constrain. Zero when no step was solved.
   Matrix6d normal_matrix = Matrix6d::Zero();
+  /// Eigen-analysis of the same normal equations (P2L, Cell Search): the directions the view did
+  /// not fix kept the guess (DegeneracyConfig).
+  DegeneracyAnalysis degeneracy;
   std::string failure;  ///< empty when the registration is usable
 };
 

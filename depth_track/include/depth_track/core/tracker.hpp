@@ -14,6 +14,7 @@
 #include "depth_track/core/cell_reducer.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/noise_model.hpp"
 #include "depth_track/core/prefilter.hpp"
 #include "depth_track/core/prefilter_stage.hpp"
 #include "depth_track/core/registration.hpp"
@@ -28,6 +29,11 @@ struct TrackerConfig : CellOdometryConfig {
   PrefilterConfig prefilter;
   PcaConfig pca;
   int threads = 1;  ///< workers of the shared pool (prefilter and reduction)
+  /// Estimate the depth noise on the first usable frame (NoiseEstimator) and set from it, before
+  /// the first registration: the edge test's noise term, normal pooling (normal_radius,
+  /// normal_merge_dist), min_valid_fraction, cos_min, huber_delta and max_error (adaptToNoise).
+  /// Off: those parameters are used as given (the presets in config/ switch it off).
+  bool auto_noise = true;
 
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
   /// The reduction as the tracker runs it: inverse square roots only when Cell Search's
@@ -67,6 +73,9 @@ class Tracker {
   const CellOdometry& odometry() const { return odometry_; }
   /// ms per track() call, whole frame.
   const RunningStats& timing() const { return timing_; }
+  /// With auto_noise: what the first frame's noise measurement gave and set (nullopt before
+  /// it, and without auto_noise).
+  const std::optional<NoiseCalibration>& noiseCalibration() const { return calibration_; }
 
  private:
   PinholeIntrinsics intrinsics_;
@@ -76,6 +85,11 @@ class Tracker {
   CellReducer reducer_;
   CellOdometry odometry_;
   RunningStats timing_;
+  Eigen::Isometry3d T_W_C0_;
+  std::optional<NoiseCalibration> calibration_;
+  /// Keeps `calibration` and, when it measured the noise, rebuilds reducer and odometry with
+  /// its settings (before the first frame only: nothing is tracked yet).
+  void applyCalibration(const NoiseCalibration& calibration);
 };
 
 }  // namespace depth_track

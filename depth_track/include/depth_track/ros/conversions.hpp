@@ -6,6 +6,7 @@
 // under include/depth_track/core never sees these headers). Every function is thread-safe.
 #include <geometry_msgs/Pose.h>
 #include <geometry_msgs/Transform.h>
+#include <rig_msgs/NoiseCalibration.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
@@ -18,6 +19,7 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/noise_model.hpp"
 
 namespace depth_track {
 namespace conv {
@@ -68,6 +70,13 @@ sensor_msgs::PointCloud2Ptr cellsToCloud(const CellCloud& cells, const std_msgs:
 std::shared_ptr<CellCloud> cellsFromCloud(const sensor_msgs::PointCloud2& cloud, int image_width,
                                           int image_height);
 
+/// The first frame's noise calibration (auto_noise) as pca_reduce sends it to registration;
+/// every value travels as float64, so the receiver applies the sender's settings bit for bit.
+rig_msgs::NoiseCalibration toMsg(const NoiseCalibration& calibration,
+                                 const std_msgs::Header& header);
+/// Throws DepthInputError for a measured calibration with a non-finite or out-of-range value.
+NoiseCalibration fromMsg(const rig_msgs::NoiseCalibration& msg);
+
 // ---- poses
 // ---------------------------------------------------------------------------------------
 
@@ -88,6 +97,14 @@ std::array<double, 36> poseCovariance(const Matrix6d& H, double sigma_m,
                                       const Eigen::Isometry3d& T_P_ref,
                                       const Eigen::Vector3d& p_P_body,
                                       double unconstrained_var = 1e3);
+
+/// The same ROS covariance from a covariance already taken over the increment [omega; u] of
+/// FrameStatus::covariance (rotation about the camera centre, the centre's displacement, both in
+/// the reference frame of orientation R_P_ref), with the camera centre at c_P in the parent frame.
+std::array<double, 36> poseCovarianceOfIncrement(const Matrix6d& cov_ref,
+                                                 const Eigen::Matrix3d& R_P_ref,
+                                                 const Eigen::Vector3d& c_P,
+                                                 const Eigen::Vector3d& p_P_body);
 
 /// Diagonal covariance with the given position (m^2) and rotation (rad^2) variances.
 std::array<double, 36> diagonalCovariance(double var_pos_m2, double var_rot_rad2);

@@ -199,6 +199,11 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
   t0 = std::chrono::steady_clock::now();
   RegistrationConfig reg = config.registration;
   reg.min_matches = std::min(reg.min_matches, config.min_matches);
+  // The guess is the odometry's pose, whose error against the map is the drift this step is
+  // there to remove (up to the correction gate), not the tracker's per-frame motion prior: weighed
+  // against that (2 mm), each correction stopped short and closed only part of the drift. The
+  // directions the model does not fix at all still keep the odometry's pose.
+  reg.degeneracy.prior_sigma_m = std::max(config.max_correction_m, reg.degeneracy.prior_sigma_m);
   const RegistrationResult res = registerCells(model, cur, K, Eigen::Isometry3d::Identity(), reg);
   r.ms_register = msSince(t0);
   r.matches = res.matches;

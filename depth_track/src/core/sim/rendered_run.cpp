@@ -225,9 +225,60 @@ TrackRunSpec rtSpec(const std::string& name, double speed_mmps, double duration_
 
 }  // namespace
 
+namespace {
+// Smoothstep 3u^2 - 2u^3 on [0, 1] and its integral u^3 - u^4 / 2 (clamped outside).
+double smooth(double u) {
+  u = std::clamp(u, 0.0, 1.0);
+  return u * u * (3.0 - 2.0 * u);
+}
+double smoothIntegral(double u) {
+  if (u <= 0.0) return 0.0;
+  if (u >= 1.0) return 0.5 + (u - 1.0);
+  return u * u * u - 0.5 * u * u * u * u;
+}
+
+// wall_slide: a camera carried along a wall in wallCabinetScene(). 0-0.6 s at rest looking at
+// the furnished +x side; 0.6-1.4 s speeding up to 0.15 m/s along -x (still looking at the
+// furnished side); 1.4-2.4 s turning left to face the +y wall at that speed; 2.4-5.4 s square on
+// to the wall and cabinet, sliding along them (the degenerate stretch); 5.4-6.4 s turning back;
+// 6.4-7.2 s slowing down; 7.2-8 s at rest looking at the furnished side again. The speed is
+// constant while the view is degenerate: no depth sensor sees motion along a bare wall, so the
+// motion prior is all a tracker has there. A small pitch sway throughout (pitch stays
+// observable square on to a wall).
+RenderedRun makeWallSlideRun() {
+  RenderedRun run;
+  run.name = "wall_slide";
+  run.description =
+      "camera carried along a wall at 0.15 m/s: furnished side, then 3 s square on to the wall "
+      "with a parallel cabinet front and picture, then back to the furnished side";
+  run.scene = wallCabinetScene();
+  const double speed = 0.15, x0 = 0.45, ramp = 0.8;
+  auto pose = [=](double t) {
+    const double x =
+        x0 - speed * ramp * (smoothIntegral((t - 0.6) / ramp) - smoothIntegral((t - 6.4) / ramp));
+    const double yaw = 0.5 * M_PI * (smooth(t - 1.4) - smooth(t - 5.4));
+    const double pitch = 0.3 * M_PI / 180.0 * std::sin(2.0 * M_PI * 0.9 * t);
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.translation() = Eigen::Vector3d(x, 0.4, 1.3);
+    T.linear() = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(-pitch, Eigen::Vector3d::UnitY()))
+                     .toRotationMatrix() *
+                 rotationBodyFromOptical();
+    return T;
+  };
+  const double dt = 1.0 / 30.0;
+  for (int k = 0; k <= 240; ++k) {
+    run.stamps_s.push_back(k * dt);
+    run.T_W_C.push_back(pose(k * dt));
+  }
+  run.pose_at = pose;
+  return run;
+}
+}  // namespace
+
 std::vector<std::string> knownRuns() {
-  return {"xtest1_05_chair", "chair_still", "rt1",  "rt2", "rt3", "rt4", "rt5", "rt6",
-          "chair3",          "room3",       "hall1"};
+  return {"xtest1_05_chair", "chair_still", "rt1",   "rt2",       "rt3", "rt4", "rt5", "rt6",
+          "chair3",          "room3",       "hall1", "wall_slide"};
 }
 
 RenderedRun makeRun(const std::string& name) {
@@ -292,6 +343,7 @@ RenderedRun makeRun(const std::string& name) {
     s.segments = {{8.0 / 0.30, 0.30, 0.0}};
     return makeTruckRun(s, hallwayScene());
   }
+  if (name == "wall_slide") return makeWallSlideRun();
   std::string known;
   for (const auto& k : knownRuns()) known += (known.empty() ? "" : ", ") + k;
   throw std::invalid_argument("unknown run '" + name + "' (known: " + known + ")");

@@ -421,6 +421,25 @@ Scene furnishedRoomScene() {
   return s;
 }
 
+Scene wallCabinetScene() {
+  Scene s;
+  s.name = "wall_cabinet";
+  addRoomShell(s, -2.5, 2.5, -2.0, 2.0, 2.5);
+  // The +y wall: a tall cabinet whose front is parallel to it, and a shallow picture beside it.
+  // Seen square on from the middle of the room (floor, ceiling and the cabinet's top out of
+  // view), every surface in view shares one normal: only the outlines tell where along the wall
+  // and at which height the camera is.
+  s.addBoxAabb(V(-0.6, 1.55, 0.0), V(0.6, 2.0, 2.2), "cabinet");
+  s.addBoxAabb(V(-1.3, 1.97, 1.1), V(-0.8, 2.0, 1.5), "picture");
+  // The +x side: furniture with faces in every direction.
+  addBookcase(s, V(2.15, -1.2, 0.0), V(2.5, 0.0, 1.9), 5, true, "bookcase");
+  addSimpleChair(s, 1.6, 0.8, M_PI, "chair");
+  s.addBox(V(1.9, -1.6, 0.25), 0.4, V(0.25, 0.2, 0.25), "box");
+  s.addCylinder(V(2.1, 1.5, 0.0), V(2.1, 1.5, 0.9), 0.2, "column");
+  s.addSphere(V(1.5, -0.4, 0.15), 0.15, "ball");
+  return s;
+}
+
 namespace {
 
 /// A wall along x at y = wall_y whose face points along `facing` (+1: +y, -1: -y), from x0 to

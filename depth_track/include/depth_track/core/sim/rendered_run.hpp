@@ -116,7 +116,8 @@ std::vector<std::string> knownRuns();
 /// The named run: "xtest1_05_chair" (3 still frames, 100 steps of 10 mm towards the chair),
 /// "chair_still" (90 frames at rest at the xtest1 start pose: drift under noise alone),
 /// "rt1".."rt6" (thesis table 5.4 at the achieved speeds), "chair3", "room3", "hall1"
-/// (ServoTruck). Throws std::invalid_argument naming an unknown name and listing known ones.
+/// (ServoTruck), "wall_slide" (degenerate view: 3 s square on to a wall and a parallel cabinet).
+/// Throws std::invalid_argument naming an unknown name and listing known ones.
 RenderedRun makeRun(const std::string& name);
 
 }  // namespace sim

@@ -89,5 +89,10 @@ Scene hallwayScene();
 Scene calibrationTargetScene(double diameter_m = 0.6, double wall_gap_m = 0.6,
                              bool with_target = true);
 
+/// Degenerate-view room (run wall_slide): 5 m x 4 m, 2.5 m high, centred on the W origin; on
+/// the +y wall a 1.2 m wide, 0.45 m deep, 2.2 m tall cabinet and a 3 cm deep picture, whose
+/// fronts are parallel to the wall; furniture with faces in every direction on the +x side.
+Scene wallCabinetScene();
+
 }  // namespace sim
 }  // namespace depth_track
