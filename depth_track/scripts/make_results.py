@@ -411,27 +411,31 @@ def read_run(name, config):
     except OSError:
         pass
     r["cpu_ms"] = sorted(cpu)[len(cpu) // 2] if cpu else math.nan
+    # evaluate_bag's own minima and verdicts (latency_best.csv); a run made before it wrote that
+    # file gets its minima from the curves (ties to the smaller shift, as evaluate_bag) and no
+    # verdict.
     r["latency"] = {}  # against -> (best shift by rotation, best shift by position)
-    try:
-        with open(os.path.join(out, "latency.csv")) as f:
-            rows = list(csv.DictReader(f))
-        for who in ("tracked", "ground_truth"):
-            sel = [x for x in rows if x["against"] == who]
-            # Ties go to the smaller shift, as in evaluate_bag.
-            best = lambda key: int(min(sel, key=lambda x: (float(x[key]),
-                                                           abs(int(x["shift_frames"]))))["shift_frames"])
-            if sel:
-                r["latency"][who] = (best("rms_rot_deg"), best("rms_pos_mm"))
-    except OSError:
-        pass
     r["latency_resolved"] = {}  # against -> (rotation resolved, position resolved)
     try:
         with open(os.path.join(out, "latency_best.csv")) as f:
             for row in csv.DictReader(f):
+                r["latency"][row["against"]] = (int(row["best_rot_shift"]),
+                                                int(row["best_pos_shift"]))
                 r["latency_resolved"][row["against"]] = (row["rot_resolved"] == "1",
                                                          row["pos_resolved"] == "1")
-    except (OSError, KeyError):
-        pass  # runs made before evaluate_bag judged its minima
+    except (OSError, KeyError, ValueError):
+        r["latency"], r["latency_resolved"] = {}, {}
+        try:
+            with open(os.path.join(out, "latency.csv")) as f:
+                rows = list(csv.DictReader(f))
+            for who in ("tracked", "ground_truth"):
+                sel = [x for x in rows if x["against"] == who]
+                best = lambda key: int(min(sel, key=lambda x: (float(x[key]),
+                                                               abs(int(x["shift_frames"]))))["shift_frames"])
+                if sel:
+                    r["latency"][who] = (best("rms_rot_deg"), best("rms_pos_mm"))
+        except OSError:
+            pass
     return r
 
 
