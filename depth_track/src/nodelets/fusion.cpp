@@ -50,9 +50,7 @@ class FusionNodelet : public nodelet::Nodelet {
     publish_period_s_ = r.getDouble("publish_period");
     const int sync_queue = r.getInt("sync_queue");
     FrameQueueOptions queue_options;
-    // Priorities only shape who waits in live mode; replay orders the stages by itself.
-    const int worker_nice = r.getInt("worker_nice");
-    if (mode_ == Mode::kLive) queue_options.worker_nice = worker_nice;
+    queue_options.worker_nice = r.getInt("worker_nice");  // live mode only (FrameQueue)
     map_path_ = r.getString("map_path");
     config_ = readMapperTable(r, nh);
     r.finish();

@@ -49,8 +49,10 @@ struct FrameQueueOptions {
   /// frame that overruns its period (or two frames delivered at once) without a skip, and
   /// still never lets a backlog grow.
   std::size_t live_depth = 1;
-  /// Nice value of the worker thread (0 = the process's; higher yields the cores to threads of
-  /// lower values, e.g. the map's work to the tracking chain). Linux nice is per thread.
+  /// Live mode: nice value of the worker thread (0 = the process's; higher yields the cores to
+  /// threads of lower values, e.g. the map's work to the tracking chain). Linux nice is per
+  /// thread. Replay ignores it: there every stage takes every frame in order, so a priority
+  /// would only slow the replay down.
   int worker_nice = 0;
 };
 
@@ -66,7 +68,7 @@ class FrameQueue {
              FrameQueueOptions options = {})
       : mode_(mode),
         capacity_(mode == Mode::kLive ? std::max<std::size_t>(options.live_depth, 1) : capacity),
-        nice_(options.worker_nice),
+        nice_(mode == Mode::kLive ? options.worker_nice : 0),
         process_(std::move(process)) {
     worker_ = std::thread([this] { run(); });
   }

@@ -43,9 +43,7 @@ class LoopClosureNodelet : public nodelet::Nodelet {
     const double tf_rate = r.getDouble("tf_rate");
     const int sync_queue = r.getInt("sync_queue");
     FrameQueueOptions queue_options;
-    // Priorities only shape who waits in live mode; replay orders the stages by itself.
-    const int worker_nice = r.getInt("worker_nice");
-    if (mode_ == Mode::kLive) queue_options.worker_nice = worker_nice;
+    queue_options.worker_nice = r.getInt("worker_nice");  // live mode only (FrameQueue)
     wait_timeout_s_ = r.getDouble("wait_timeout");
     config_ = readMapperTable(r, nh);
     r.finish();

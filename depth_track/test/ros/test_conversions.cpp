@@ -389,7 +389,9 @@ TEST(TrackingYaml, NodeletParametersDocumentedAtTheirDefaults) {
       }
     }
     for (const auto& p : rosparams::nodeParams())
-      if (p.node == node) EXPECT_TRUE(seen.count(p.name)) << node << "/" << p.name << " missing";
+      if (p.node == node) {
+        EXPECT_TRUE(seen.count(p.name)) << node << "/" << p.name << " missing";
+      }
   }
   for (const auto& kv : root)
     EXPECT_TRUE(sections.count(kv.first.as<std::string>())) << kv.first.as<std::string>();

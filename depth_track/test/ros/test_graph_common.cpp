@@ -108,6 +108,23 @@ TEST(FrameQueue, WorkerRunsAtItsNiceValue) {
   EXPECT_EQ(getpriority(PRIO_PROCESS, 0), caller);
 }
 
+// Replay takes every frame in order: the queue leaves its worker at the caller's priority.
+TEST(FrameQueue, ReplayIgnoresTheNiceValue) {
+  errno = 0;
+  const int caller = getpriority(PRIO_PROCESS, 0);
+  std::atomic<int> in_worker{-100};
+  FrameQueueOptions o;
+  o.worker_nice = std::min(caller + 7, 19);
+  {
+    FrameQueue<int> q(
+        Mode::kReplay, 4, [&](const int&) { in_worker = getpriority(PRIO_PROCESS, 0); }, o);
+    q.push(0);
+    while (in_worker == -100) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    EXPECT_EQ(q.workerNice(), caller);
+  }
+  EXPECT_EQ(in_worker.load(), caller);
+}
+
 TEST(StampPairer, PairsEitherOrderAndReleasesOrphans) {
   StampPairer<int, char> p(3);
   EXPECT_FALSE(p.addA(ros::Time(1.0), 1));
