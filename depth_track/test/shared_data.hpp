@@ -77,3 +77,5 @@ inline std::string sharedDataMissing(const std::string& sub, const std::string& 
 
 /// The TUM fr3/teddy sequence (depth.txt, groundtruth.txt, depth/*.png).
 #define DT_TEDDY_OR_SKIP(var) DT_SHARED_DATA_OR_SKIP(var, "data/tum_fr3_teddy", "depth.txt")
+/// The TUM fr1/xyz sequence (same layout).
+#define DT_FR1_XYZ_OR_SKIP(var) DT_SHARED_DATA_OR_SKIP(var, "data/tum_fr1_xyz", "depth.txt")

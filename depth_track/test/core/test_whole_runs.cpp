@@ -1,5 +1,6 @@
 // Whole runs through the tracker, scored against ground truth: the rendered thesis test runs
-// (xtest1_05_chair, rt3) with the L515 noise model, and the real TUM fr3/teddy Kinect sequence.
+// (xtest1_05_chair, rt3) with the L515 noise model and with D435-class noise, and the real TUM
+// fr3/teddy and fr1/xyz Kinect sequences.
 // Each rendered run is held to two bounds: the product's accuracy target (README; they beat the
 // thesis's tables 5.3 and 5.5), and a guard near what is measured, so that a regression many
 // times the measured error fails long before the target does. The guards' margins come from the
@@ -116,14 +117,37 @@ TEST(WholeRun, Xtest1ChairD435Preset) {
   expectTrackedWithin(r, 0.6, 25.0);
 }
 
-// Real Kinect data with motion-capture ground truth. Open3D frame-to-frame point-to-plane ICP
-// scores 0.38 m here, a still camera 0.57 m. Target: ATE RMSE <= 0.10 m.
-TEST(WholeRun, TumTeddyRealKinect) {
-  DT_TEDDY_OR_SKIP(dir);
+// The same D435-class noise with the defaults (one configuration for every sensor: the noise
+// is measured on the first frame). Issue 12's targets: xtest1 0.25 deg / 8 mm, rt3 0.5 deg /
+// 15 mm, Room3 1 deg / 40 mm. Measured, seeds 1-5 (2026-12-02, max rotation / position error):
+// xtest1 0.411/0.418/0.402/0.388/0.413 deg, 8.29/7.98/8.29/7.84/8.12 mm (the 0.25 deg / 8 mm
+// target is NOT met: pitch); rt3 0.379/0.441/0.305/0.453/0.253 deg, 8.17/13.01/9.98/9.56/8.77 mm;
+// Room3 0.622/0.341/0.338/0.352/0.327 deg, 25.32/16.12/21.07/25.52/19.37 mm. xtest1 is held to
+// a guard 1.3x the largest; rt3 and Room3 to their targets (rt3's margin is thin: 0.453 of 0.5
+// deg on seed 4).
+TEST(WholeRun, Xtest1ChairD435Defaults) {
+  const RunResult r = trackRendered("xtest1_05_chair", TrackerConfig{}, sim::NoiseModel::kD435);
+  expectTrackedWithin(r, 0.55, 11.0);  // guard; the 0.25 deg / 8 mm target is not met
+}
+
+TEST(WholeRun, Rt3D435Defaults) {
+  const RunResult r = trackRendered("rt3", TrackerConfig{}, sim::NoiseModel::kD435);
+  expectTrackedWithin(r, 0.5, 15.0);  // target
+}
+
+TEST(WholeRun, Room3D435Defaults) {
+  const RunResult r = trackRendered("room3", TrackerConfig{}, sim::NoiseModel::kD435);
+  expectTrackedWithin(r, 1.0, 40.0);  // target
+}
+
+// Real Kinect data with motion-capture ground truth (TUM RGB-D), tracked with one configuration
+// for every sensor: the defaults, which measure the depth noise on the first frame (auto_noise).
+// Issue 12's target is ATE RMSE <= 0.03 m on each sequence.
+namespace {
+
+TrajectoryEvaluation trackTum(const std::string& dir, const PinholeIntrinsics& K,
+                              const TrackerConfig& cfg, const char* label) {
   const std::vector<TumFrame> frames = readTumFrameList(dir + "/depth.txt");
-  TrackerConfig cfg;
-  loadTrackerParamsYaml(std::string(DT_SOURCE_DIR) + "/../config/tum_kinect.yaml", cfg);
-  const PinholeIntrinsics K{640, 480, 535.4, 539.2, 320.1, 247.6};
   Tracker tracker(K, cfg);
   Trajectory est;
   for (const TumFrame& f : frames) {
@@ -133,7 +157,42 @@ TEST(WholeRun, TumTeddyRealKinect) {
   }
   const TrajectoryEvaluation ev =
       evaluateTrajectory(est, readTumTrajectory(dir + "/groundtruth.txt"));
-  std::printf("teddy: %s\n", formatEvaluation(ev).c_str());
+  std::printf("%s: %s\n", label, formatEvaluation(ev).c_str());
+  return ev;
+}
+
+const PinholeIntrinsics kFr3{640, 480, 535.4, 539.2, 320.1, 247.6};
+const PinholeIntrinsics kFr1{640, 480, 517.3, 516.5, 318.6, 255.3};
+
+}  // namespace
+
+// fr3/teddy, 196 frames with ground truth. Open3D frame-to-frame point-to-plane ICP scores
+// 0.38 m here, a still camera 0.57 m, the L515 defaults without the noise adaptation 0.22 m.
+// Measured with the defaults: 0.0636 m. The 0.03 m target is NOT met; the bound is a guard
+// 1.1x the measured figure (the run is deterministic: one thread, no random state).
+TEST(WholeRun, TumTeddyDefaults) {
+  DT_TEDDY_OR_SKIP(dir);
+  const TrajectoryEvaluation ev = trackTum(dir, kFr3, TrackerConfig{}, "teddy defaults");
+  EXPECT_GE(ev.standard.frames, 190u);
+  EXPECT_LE(ev.standard.ate_rmse_m, 0.07);
+}
+
+// fr1/xyz, 798 frames: the sequence the noise adaptation was validated on, not developed on.
+// Measured with the defaults: 0.0292 m; the bound is the product target.
+TEST(WholeRun, TumFr1XyzDefaults) {
+  DT_FR1_XYZ_OR_SKIP(dir);
+  const TrajectoryEvaluation ev = trackTum(dir, kFr1, TrackerConfig{}, "fr1/xyz defaults");
+  EXPECT_GE(ev.standard.frames, 780u);
+  EXPECT_LE(ev.standard.ate_rmse_m, 0.03);
+}
+
+// The Kinect preset (an explicit override, tuned on teddy, so it proves nothing about other
+// sequences): measured 0.061 m; guarded at 0.10 m so the preset keeps working.
+TEST(WholeRun, TumTeddyKinectPreset) {
+  DT_TEDDY_OR_SKIP(dir);
+  TrackerConfig cfg;
+  loadTrackerParamsYaml(std::string(DT_SOURCE_DIR) + "/../config/tum_kinect.yaml", cfg);
+  const TrajectoryEvaluation ev = trackTum(dir, kFr3, cfg, "teddy tum_kinect.yaml");
   EXPECT_GE(ev.standard.frames, 190u);
   EXPECT_LE(ev.standard.ate_rmse_m, 0.10);
 }
