@@ -345,8 +345,13 @@ def code_state():
     that touched the code evaluate_bag is built from, and whether that code had uncommitted
     changes (the binaries' hash in run.json is what makes a rebuilt tracker re-run)."""
     if "code" not in _hash_cache:
-        paths = ["depth_track/src", "depth_track/include", "depth_track/tools", "rig_drivers",
-                 "rig_msgs", "depth_track/CMakeLists.txt"]
+        # What evaluate_bag and dt_peers are built from (not the graph's nodelets and nodes:
+        # they do not change an offline run; not the rig code, which made the bags before).
+        paths = ["depth_track/src/core", "depth_track/src/ros", "depth_track/include",
+                 "depth_track/tools", "depth_track/CMakeLists.txt"] + [
+                     "depth_track/bench/peers/" + f for f in
+                     ("CMakeLists.txt", "dt_peers.cpp", "peers.hpp", "peers_open3d.cpp",
+                      "peers_pcl.cpp")]
         _hash_cache["code"] = {
             "head": git("rev-parse", "--short", "HEAD"),
             "code_commit": git("log", "-1", "--format=%h", "--", *paths),
@@ -713,8 +718,8 @@ def write_page(bags, args):
     w("The runs take hours of CPU on the shared 2-core machine, so not every row of the matrix "
       "below was run for this page: a row without figures says *not run*. Finished, per set of "
       "configurations (`--only`; runs niced, one thread each). *Code* is the last commit that "
-      "touched the tracking, map, tool or rig code when the run started (the binaries were built "
-      "from it; a run is redone whenever the binaries change):")
+      "touched what `evaluate_bag` is built from (the core, its ROS conversions, the tools) when "
+      "the run started; a run is redone whenever the binaries change:")
     w("")
     w("| set | what | bags | finished | ran (UTC) | code | load |")
     w("|---|---|---|---|---|---|---|")
@@ -1173,7 +1178,7 @@ def main():
         raise SystemExit("make_results: --only takes %s (got %s)" % (
             ", ".join(SETS), ", ".join(sorted(args.only - set(SETS)))))
     for tool in (EVALUATE_BAG, TUM_TO_BAG, MAKE_SCENARIO_BAG):
-        if not os.path.exists(tool):
+        if not os.path.exists(tool) and not args.peers_only:
             raise SystemExit("make_results: %s not built (./catkin_ws_setup.sh)" % tool)
     unknown = [s for s in args.scenarios if s not in SCENARIOS]
     if unknown:
