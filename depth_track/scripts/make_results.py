@@ -637,6 +637,24 @@ def git(*args):
         return "?"
 
 
+def shrink_png(src, dst):
+    """Half size, 64-colour palette (~50 kB a plot, so the page's plots stay small in git)."""
+    try:
+        from PIL import Image
+        with Image.open(src) as im:
+            im = im.convert("RGB")
+            im = im.resize((im.width // 2, im.height // 2), Image.LANCZOS)
+            im.quantize(colors=64).save(dst, optimize=True)
+        return
+    except (ImportError, OSError):
+        pass
+    try:
+        subprocess.run(["convert", src, "-resize", "50%", "-colors", "64", "PNG8:" + dst],
+                       check=True, stderr=subprocess.DEVNULL)
+    except (OSError, subprocess.CalledProcessError):
+        shutil.copy(src, dst)
+
+
 def copy_plots(name, config, label):
     """The run's own tracking and map PNGs, shrunk for the page (no re-plotting: cheap)."""
     run_dir = os.path.join(RESULTS, name, config)
@@ -650,11 +668,7 @@ def copy_plots(name, config, label):
         if not os.path.exists(src):
             continue
         dst = "%s_%s.png" % (name, plot)
-        try:
-            subprocess.run(["convert", src, "-resize", "50%", "-colors", "64",
-                            "PNG8:" + os.path.join(PAGE_PLOTS, dst)], check=True)
-        except (OSError, subprocess.CalledProcessError):
-            shutil.copy(src, os.path.join(PAGE_PLOTS, dst))
+        shrink_png(src, os.path.join(PAGE_PLOTS, dst))
         out.append(dst)
     return out
 
@@ -777,6 +791,15 @@ def write_page(bags, args):
         r = runs.get((name, config))
         return axes_of(r["scores"].get(role) if r else None, euler)
 
+    def sensors_floor(name):
+        """The sensors' own error against ground truth: a property of the bag, not of the
+        configuration, so any finished run of it gives it (the default run first)."""
+        for config in [default_config(None)] + sorted(c for (n, c) in runs if n == name):
+            v = row_for(name, config, "sensors_vs_ground_truth")
+            if v:
+                return v
+        return None
+
     # ---- targets
     w("## Targets")
     w("")
@@ -892,7 +915,7 @@ def write_page(bags, args):
                     worse.append("XTest1_05_Chair, %s, ours %s: worse than the thesis on %s" % (
                         label, who, ", ".join(bad)))
     w("")
-    sv = row_for("XTest1_05_Chair", default_config("l515"), "sensors_vs_ground_truth")
+    sv = sensors_floor("XTest1_05_Chair")
     w("Sensors vs GT on this run (their own error, the floor of every *vs sensors* row): %s" % (
         " / ".join(f3(x) if i < 3 else f2(x) for i, x in enumerate(sv)) if sv else "—"))
     w("")
@@ -926,7 +949,7 @@ def write_page(bags, args):
                         if bad:
                             worse.append("%s, %s, ours %s: worse than the thesis on %s" % (
                                 s, describe(config), who, ", ".join(bad)))
-            sv = row_for(s, cfgs[0], "sensors_vs_ground_truth")
+            sv = sensors_floor(s)
             w("| | | sensors vs GT %s|" % axes_cells(sv))
         w("")
 
@@ -1128,15 +1151,22 @@ def write_page(bags, args):
       "run's own folder (`bags/generated/results/<bag>/<config>/`) has these and the frame time, "
       "match and latency plots at full size.")
     w("")
+    linked = set()
     for name, path, scenario, noise, kind in bags:
         dflt = default_config(noise)
         if not runs.get((name, dflt)):
             continue
         pngs = copy_plots(name, dflt, "%s, %s" % (name, describe(dflt)))
+        linked.update(pngs)
         if pngs:
             w("- %s: %s" % (name, ", ".join("[%s](results/%s)" % (p[len(name) + 1:-4], p)
                                             for p in pngs)))
     w("")
+    # Plots of an earlier page whose run is not on this one would pass for this code's.
+    if os.path.isdir(PAGE_PLOTS):
+        for f in os.listdir(PAGE_PLOTS):
+            if f.endswith(".png") and f not in linked:
+                os.remove(os.path.join(PAGE_PLOTS, f))
     os.makedirs(os.path.dirname(PAGE), exist_ok=True)
     with open(PAGE, "w") as f:
         f.write("\n".join(L) + "\n")
