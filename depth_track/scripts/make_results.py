@@ -719,7 +719,9 @@ def write_page(bags, args):
     w("- **Time**: `ms` is the median wall clock per frame of tracking (+ mapping where on) as "
       "`evaluate_bag` prints it; `cpu` the median process CPU time of the same work. The machine "
       "(2 cores) was shared with other builds and runs throughout (%s), so the wall clock is "
-      "partly waiting; the CPU time is what the code costs. One thread." % (
+      "partly waiting; the CPU time is what the code costs. One thread. The *default* rows also "
+      "fuse every frame into the map (for the map plots), so their times include the fusion; "
+      "the other rows track only (loop-closure rows excepted)." % (
           "1-minute load %.1f-%.1f at the runs' starts and ends" % (min(loads), max(loads))
           if loads else "load not recorded for these runs"))
     w("- **Configurations**: every row is the tracker defaults (`config/tracker.yaml`, with its "
