@@ -795,8 +795,9 @@ def write_page(bags, args):
         w(args.runs_note)
     w("")
     if done:
-        w("`evaluate_bag` of these runs was built %s UTC (binaries %s). The bags were generated "
-          "by `bags/generate_bags.sh` (L515) and this script (D435, TUM); they are not in git." % (
+        w("`evaluate_bag` of these runs was built %s UTC (binaries %s). The bags are not in git "
+          "(step 1 of this script makes them: `bags/generate_bags.sh` for L515, "
+          "make_scenario_bag with D435 noise, tum_to_bag)." % (
               datetime.datetime.utcfromtimestamp(os.path.getmtime(EVALUATE_BAG)).strftime(
                   "%Y-%m-%d %H:%M"), binaries_hash()[:10]))
         w("")
