@@ -1079,9 +1079,12 @@ def write_page(bags, args):
       "error (positive: the sensors lag the camera). The thesis found 4 frames on RT3. Against the "
       "tracked trajectory (the thesis's method) and against ground truth (what the sensors' lag "
       "really is in the simulator: USB 2-4 ms, ZigBee 15-25 ms, plus the readings' own filters). "
-      "Default configuration, L515. A shift marked *(noise)* is not resolved: one step of shift "
-      "moves the reference by no more than the error left at the minimum (the rig hardly moved on "
-      "that axis), or the minimum lies at the scan's edge; *(?)*: the run predates that check.")
+      "Default configuration, L515. A shift marked *(noise)* is evaluate_bag's verdict *not "
+      "resolved* (latency_best.csv): two steps either side of the minimum the error rises by no "
+      "more than three times the curve's own jitter (the rig hardly moved on that axis), or the "
+      "minimum lies within two steps of the scan's edge; such a shift is no latency "
+      "([evaluation.md](evaluation.md#metrics-evaluationhpp-srccoreevaluationcpp)). *(?)*: the "
+      "run predates that check.")
     w("")
     w("| scenario | best shift vs tracked (by rotation / position) | vs ground truth |")
     w("|---|---|---|")
