@@ -192,10 +192,9 @@ FULL = ["--prefilter", "bilateral", "--bilateral-mode", "full"]
 NONE = ["--prefilter", "none"]
 
 
-def default_config(noise):
-    """The tracker's defaults (config/tracker.yaml, auto_noise on): one configuration for every
-    camera (issue 12); the camera presets are a set of their own (PRESETS)."""
-    return "p2l_adaptive_nopf"
+# The tracker's defaults (config/tracker.yaml, auto_noise on): one configuration for every camera
+# (issue 12); the camera presets are a set of their own (PRESETS).
+DEFAULT_CONFIG = "p2l_adaptive_nopf"
 
 
 # The camera presets: explicit overrides, run as extra, labelled rows on their camera's bags only.
@@ -249,7 +248,7 @@ def describe(config):
     words = {"p2p": "P2P", "p2l": "P2L", "cs": "Cell Search"}[method]
     words += ", " + ("adaptive reference" if ref == "adaptive" else "fixed reference")
     words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure"}[extra]
-    if config == default_config(None):
+    if config == DEFAULT_CONFIG:
         words = "tracker defaults (%s)" % words
     return words
 
@@ -285,12 +284,18 @@ def final_line(path):
     return lines[-1] if lines and lines[-1].startswith("frames=") else None
 
 
-def run_done(out, key):
+def read_json(path):
+    """The JSON object in `path`, or {} when it is missing or unreadable."""
     try:
-        with open(os.path.join(out, "run.json")) as f:
-            return json.load(f) == key and final_line(os.path.join(out, "report.txt")) is not None
+        with open(path) as f:
+            return json.load(f)
     except (OSError, ValueError):
-        return False
+        return {}
+
+
+def run_done(out, key):
+    return (read_json(os.path.join(out, "run.json")) == key and
+            final_line(os.path.join(out, "report.txt")) is not None)
 
 
 _print_lock = threading.Lock()
@@ -330,7 +335,7 @@ def evaluate(job):
 
 def config_set(config, noise):
     """Which of the --only sets a configuration belongs to."""
-    if config == default_config(noise):
+    if config == DEFAULT_CONFIG:
         return "default"
     if config.startswith("preset_"):
         return "preset"
@@ -385,13 +390,9 @@ def run_all(bags, jobs, frames, only, plot_bags, names=None):
             fut.result()
 
 
-PEER_INPUTS = ("tum_fr3_teddy", "tum_fr1_xyz", "rt3_l515")
-
-
 def peers_key(args):
     h = hashlib.sha1()
-    for p in [DT_PEERS] + [os.path.join(DEVEL, "lib", "libdepth_track_%s.so" % l)
-                           for l in ("core",)]:
+    for p in (DT_PEERS, os.path.join(DEVEL, "lib", "libdepth_track_core.so")):
         if os.path.exists(p):
             with open(p, "rb") as f:
                 h.update(f.read())
@@ -419,12 +420,7 @@ def run_peers():
         logf = os.path.join(out, label + ".log")
         metaf = os.path.join(out, label + ".json")
         key = peers_key(args)
-        try:
-            with open(metaf) as f:
-                done = json.load(f).get("key") == key and peers_table(logf)
-        except (OSError, ValueError):
-            done = False
-        if done:
+        if read_json(metaf).get("key") == key and peers_table(logf):
             continue
         log("dt_peers " + " ".join(args))
         meta = dict(code_state(), key=key, load_start=os.getloadavg()[0],
@@ -438,8 +434,10 @@ def run_peers():
         gt = (os.path.join(data, label, "groundtruth.txt") if label.startswith("tum_") else
               os.path.join(out, label + "_gt.txt"))
         check = {}
-        tool = shared_tools() and os.path.join(shared_tools(), "eval_traj.py")
-        for m in peers_table(logf):
+        tools = shared_tools()
+        tool = tools and os.path.join(tools, "eval_traj.py")
+        table = peers_table(logf)
+        for m in table:
             est = os.path.join(out, "%s_%s.txt" % (label, m))
             if tool and os.path.exists(tool) and os.path.exists(est) and os.path.exists(gt):
                 res = subprocess.run(["/usr/bin/python3", tool, est, gt], capture_output=True,
@@ -450,16 +448,12 @@ def run_peers():
         meta["eval_traj"] = check
         with open(metaf, "w") as f:
             json.dump(meta, f)
-        log("dt_peers %s: %s" % (label, ", ".join("%s %.4f" % (m, v["ate"]) for m, v in
-                                                 peers_table(logf).items())))
+        log("dt_peers %s: %s" % (label, ", ".join("%s %.4f" % (m, v["ate"])
+                                                 for m, v in table.items())))
 
 
 def read_peers_meta(label):
-    try:
-        with open(os.path.join(RESULTS, "peers", label + ".json")) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}
+    return read_json(os.path.join(RESULTS, "peers", label + ".json"))
 
 
 def describe_peers_meta(m):
@@ -492,11 +486,7 @@ def peers_table(path):
 # ---- reading a run --------------------------------------------------------------------------------
 def read_meta(run):
     """run_meta.json of a finished run (code, load, CPU time); empty for runs made before it."""
-    try:
-        with open(os.path.join(run["dir"], "run_meta.json")) as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return {}
+    return read_json(os.path.join(run["dir"], "run_meta.json"))
 
 
 def read_run(name, config):
@@ -583,7 +573,7 @@ def issue12_targets(w, runs):
     w("")
     w("| bag | tracked | ATE m | max angle deg | max position mm | target | met |")
     w("|---|---|---|---|---|---|---|")
-    dflt = default_config(None)
+    dflt = DEFAULT_CONFIG
     for seq in TUM:
         r = runs.get((seq, dflt))
         g = r and r["scores"].get("ground_truth")
@@ -809,7 +799,7 @@ def write_page(bags, args):
     def sensors_floor(name):
         """The sensors' own error against ground truth: a property of the bag, not of the
         configuration, so any finished run of it gives it (the default run first)."""
-        for config in [default_config(None)] + sorted(c for (n, c) in runs if n == name):
+        for config in [DEFAULT_CONFIG] + sorted(c for (n, c) in runs if n == name):
             v = row_for(name, config, "sensors_vs_ground_truth")
             if v:
                 return v
@@ -994,7 +984,7 @@ def write_page(bags, args):
                 r = runs.get((name, config))
                 if r and "ground_truth" in r["scores"]:
                     cands.append((config, r))
-            dflt = default_config(noise)
+            dflt = DEFAULT_CONFIG
             default = runs.get((name, dflt))
             full = [(c, r) for c, r in cands if r["tracked"] == r["frames"]]
             best = min(full, key=lambda x: x[1]["scores"]["ground_truth"]["ate_rmse_m"]) if full else None
@@ -1098,12 +1088,12 @@ def write_page(bags, args):
         return "%+d%s / %+d%s" % (best[0], mark(0), best[1], mark(1))
 
     for s in SCENARIOS:
-        r = runs.get((s, default_config("l515")))
+        r = runs.get((s, DEFAULT_CONFIG))
         if not r or not r["latency"]:
             continue
         w("| %s | %s | %s |" % (s, shifts(r, "tracked"), shifts(r, "ground_truth")))
     w("")
-    r = runs.get(("RT3", default_config("l515")))
+    r = runs.get(("RT3", DEFAULT_CONFIG))
     if r:
         try:
             with open(os.path.join(r["dir"], "link_timing.csv")) as f:
@@ -1179,7 +1169,7 @@ def write_page(bags, args):
     w("")
     linked = set()
     for name, path, scenario, noise, kind in bags:
-        dflt = default_config(noise)
+        dflt = DEFAULT_CONFIG
         if not runs.get((name, dflt)):
             continue
         pngs = copy_plots(name, dflt, "%s, %s" % (name, describe(dflt)))

@@ -89,22 +89,36 @@ TEST(FrameQueue, LiveDepthTwoAbsorbsOneOverrunAndSkipsTheOldest) {
   EXPECT_EQ(q.overflowed(), 0u);
 }
 
+namespace {
+
+// The nice value a queue's worker ran one item at (getpriority(PRIO_PROCESS, 0) names the
+// calling thread on Linux), and the one the queue reports, for a worker asked to run at
+// `worker_nice`.
+std::pair<int, int> workerNiceSeen(Mode mode, int worker_nice) {
+  std::atomic<int> in_worker{-100};
+  FrameQueueOptions o;
+  o.worker_nice = worker_nice;
+  int reported = -100;
+  {
+    FrameQueue<int> q(
+        mode, 4, [&](const int&) { in_worker = getpriority(PRIO_PROCESS, 0); }, o);
+    q.push(0);
+    while (in_worker == -100) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    reported = q.workerNice();
+  }
+  return {in_worker.load(), reported};
+}
+
+}  // namespace
+
 // Linux nice is per thread: the worker runs at the value asked for, the caller stays as it was.
 TEST(FrameQueue, WorkerRunsAtItsNiceValue) {
   errno = 0;
   const int caller = getpriority(PRIO_PROCESS, 0);
-  std::atomic<int> in_worker{-100};
-  FrameQueueOptions o;
-  o.worker_nice = std::min(caller + 7, 19);
-  {
-    FrameQueue<int> q(
-        Mode::kLive, 1, [&](const int&) { in_worker = getpriority(PRIO_PROCESS, 0); }, o);
-    q.push(0);
-    while (in_worker == -100) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    EXPECT_EQ(q.workerNice(), o.worker_nice);
-  }
-  // getpriority(PRIO_PROCESS, 0) names the calling thread on Linux.
-  EXPECT_EQ(in_worker.load(), o.worker_nice);
+  const int asked = std::min(caller + 7, 19);
+  const auto [in_worker, reported] = workerNiceSeen(Mode::kLive, asked);
+  EXPECT_EQ(in_worker, asked);
+  EXPECT_EQ(reported, asked);
   EXPECT_EQ(getpriority(PRIO_PROCESS, 0), caller);
 }
 
@@ -112,17 +126,9 @@ TEST(FrameQueue, WorkerRunsAtItsNiceValue) {
 TEST(FrameQueue, ReplayIgnoresTheNiceValue) {
   errno = 0;
   const int caller = getpriority(PRIO_PROCESS, 0);
-  std::atomic<int> in_worker{-100};
-  FrameQueueOptions o;
-  o.worker_nice = std::min(caller + 7, 19);
-  {
-    FrameQueue<int> q(
-        Mode::kReplay, 4, [&](const int&) { in_worker = getpriority(PRIO_PROCESS, 0); }, o);
-    q.push(0);
-    while (in_worker == -100) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    EXPECT_EQ(q.workerNice(), caller);
-  }
-  EXPECT_EQ(in_worker.load(), caller);
+  const auto [in_worker, reported] = workerNiceSeen(Mode::kReplay, std::min(caller + 7, 19));
+  EXPECT_EQ(in_worker, caller);
+  EXPECT_EQ(reported, caller);
 }
 
 TEST(StampPairer, PairsEitherOrderAndReleasesOrphans) {
