@@ -41,21 +41,25 @@ DegeneracyAnalysis analyseNormalEquations(const Matrix6d& H, double weight_sum,
   return a;
 }
 
-NoiseFloorAccumulator::NoiseFloorAccumulator(const DegeneracyAnalysis& a) {
-  rot_ = a.eigenvectors.topRows<3>() / a.length_scale_m;
-  trans_ = a.eigenvectors.bottomRows<3>();
-}
-
-void NoiseFloorAccumulator::add(const Eigen::Vector3d& lever, const Eigen::Vector3d& n, double w) {
+Vector6d noiseFloors(const DegeneracyAnalysis& a, const Matrix6d& H, const LeverMoments& m,
+                     double sigma_n2) {
+  if (!(m.wsum > 0.0)) return Vector6d::Zero();
+  const double L = a.length_scale_m;
+  Eigen::Matrix3d s1x;
+  s1x << 0, -m.s1.z(), m.s1.y(), m.s1.z(), 0, -m.s1.x(), -m.s1.y(), m.s1.x(), 0;
+  Matrix6d M;
+  M.topLeftCorner<3, 3>() = (m.s2.trace() * Eigen::Matrix3d::Identity() - m.s2) / (L * L);
+  M.topRightCorner<3, 3>() = s1x / L;
+  M.bottomLeftCorner<3, 3>() = -s1x / L;
+  M.bottomRightCorner<3, 3>() = m.wsum * Eigen::Matrix3d::Identity();
+  const Vector6d s = scaleDiagonal(L);
+  M -= s.asDiagonal() * H * s.asDiagonal();
+  Vector6d floors;
   for (int i = 0; i < 6; ++i) {
-    const Eigen::Vector3d v = rot_.col(i).cross(lever) + trans_.col(i);
-    sum_(i) += w * (v.squaredNorm() - v.dot(n) * v.dot(n));
+    const auto e = a.eigenvectors.col(i);
+    floors(i) = std::max(0.0, e.dot(M * e)) * (sigma_n2 / m.wsum);
   }
-  wsum_ += w;
-}
-
-Vector6d NoiseFloorAccumulator::floors(double sigma_n2) const {
-  return wsum_ > 0.0 ? Vector6d(sum_ * (sigma_n2 / wsum_)) : Vector6d::Zero();
+  return floors;
 }
 
 void applyNoiseFloors(DegeneracyAnalysis* a, const Vector6d& floors, double sigma_e2_m2,

@@ -63,14 +63,16 @@ Eigen::Matrix3d adjugate(const Eigen::Matrix3d& S) {
 
 // Smallest eigenvector of a symmetric PSD 3x3 matrix with adjugate `adj`, by inverse iteration
 // from `start` (the adjugate has the inverse's eigenvectors, and stays defined when the matrix
-// is singular). False when it has not settled to 1e-7 within a few steps (a small eigengap):
-// the caller then uses the closed-form solver.
+// is singular), two steps per normalisation (with adj^2: the normalisation's square root and
+// division are the slow, serial part). False when it has not settled to 1e-7 within eight steps
+// (a small eigengap): the caller then uses the closed-form solver.
 bool smallestEigenvector(const Eigen::Matrix3d& adj, Eigen::Vector3d start, Eigen::Vector3d* out) {
-  for (int step = 0; step < 8; ++step) {
-    Eigen::Vector3d next = adj * start;
+  const Eigen::Matrix3d adj2 = adj * adj;
+  for (int step = 0; step < 4; ++step) {
+    Eigen::Vector3d next = adj2 * start;
     const double len = next.norm();
     if (!(len > 1e-300) || !std::isfinite(len)) return false;
-    next /= len;
+    next *= 1.0 / len;
     if (next.dot(start) < 0.0) next = -next;
     const bool settled = (next - start).squaredNorm() < 1e-14;
     start = next;
@@ -205,10 +207,12 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
 // origin (count k, k*mean, (k-1)*cov + k*mean*mean^T) are summed in double precision, where the
 // metre-sized terms cancel to well below the covariance of a millimetre-noise patch.
 void poolNormals(const PcaConfig& config, CellCloud* cloud) {
+  // Per cell: k, s1 (3), s2 (xx xy xz yy yz zz) as one vector of ten (summed two at a time), and
+  // the float mean the merge test reads, side by side so a neighbour is one contiguous read.
+  using Sums = Eigen::Matrix<double, 10, 1>;
   struct Stats {
-    double k;
-    Eigen::Vector3d s1;
-    double s2[6];  // xx xy xz yy yz zz
+    Sums v;
+    Eigen::Vector3f mean;
   };
   const std::size_t n_cells = cloud->cells.size();
   std::vector<Stats> st(n_cells);
@@ -216,34 +220,33 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
     const Cell& c = cloud->cells[i];
     const double k = c.n_valid;
     const Eigen::Vector3d m = c.mean_C.cast<double>();
-    st[i].k = k;
-    st[i].s1 = k * m;
     const Eigen::Matrix3f& C = c.cov;
-    st[i].s2[0] = (k - 1) * C(0, 0) + k * m.x() * m.x();
-    st[i].s2[1] = (k - 1) * C(0, 1) + k * m.x() * m.y();
-    st[i].s2[2] = (k - 1) * C(0, 2) + k * m.x() * m.z();
-    st[i].s2[3] = (k - 1) * C(1, 1) + k * m.y() * m.y();
-    st[i].s2[4] = (k - 1) * C(1, 2) + k * m.y() * m.z();
-    st[i].s2[5] = (k - 1) * C(2, 2) + k * m.z() * m.z();
+    st[i].v << k, k * m.x(), k * m.y(), k * m.z(),  //
+        (k - 1) * C(0, 0) + k * m.x() * m.x(), (k - 1) * C(0, 1) + k * m.x() * m.y(),
+        (k - 1) * C(0, 2) + k * m.x() * m.z(), (k - 1) * C(1, 1) + k * m.y() * m.y(),
+        (k - 1) * C(1, 2) + k * m.y() * m.z(), (k - 1) * C(2, 2) + k * m.z() * m.z();
+    st[i].mean = c.mean_C;
   }
   const int r = config.normal_radius_cells;
   const float max_d2 = static_cast<float>(config.normal_merge_dist_m * config.normal_merge_dist_m);
   std::vector<Eigen::Vector3f> normals(n_cells);
   for (std::size_t i = 0; i < n_cells; ++i) {
     const Cell& c = cloud->cells[i];
-    double k = 0, s2[6] = {0, 0, 0, 0, 0, 0};
-    Eigen::Vector3d s1 = Eigen::Vector3d::Zero();
+    const Eigen::Vector3f mean_i = st[i].mean;
+    Sums sum = Sums::Zero();
     for (int y = std::max(0, c.gy - r); y <= std::min(cloud->grid_h - 1, c.gy + r); ++y) {
       const int* idx = cloud->grid_index.data() + static_cast<std::size_t>(y) * cloud->grid_w;
       for (int x = std::max(0, c.gx - r); x <= std::min(cloud->grid_w - 1, c.gx + r); ++x) {
         const int j = idx[x];
-        if (j < 0 || (cloud->cells[j].mean_C - c.mean_C).squaredNorm() > max_d2) continue;
+        if (j < 0) continue;
         const Stats& o = st[j];
-        k += o.k;
-        s1 += o.s1;
-        for (int e = 0; e < 6; ++e) s2[e] += o.s2[e];
+        if ((o.mean - mean_i).squaredNorm() > max_d2) continue;
+        sum += o.v;
       }
     }
+    const double k = sum(0);
+    const Eigen::Vector3d s1 = sum.segment<3>(1);
+    const double* s2 = sum.data() + 4;
     const Eigen::Vector3d m = s1 / k;
     Eigen::Matrix3d S;
     S(0, 0) = s2[0] - k * m.x() * m.x();

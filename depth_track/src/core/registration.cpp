@@ -5,6 +5,7 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -103,6 +104,17 @@ Eigen::Isometry3d alignPointToPoint(const std::vector<Eigen::Vector3d>& p,
 
 namespace {
 
+// Four floats (GCC / Clang vector extensions: SSE on x86-64, NEON on ARM), for scoring four
+// association candidates at once.
+typedef float V4f __attribute__((vector_size(16)));
+typedef int V4i __attribute__((vector_size(16)));
+inline V4f splat(float x) { return V4f{x, x, x, x}; }
+inline V4f load4(const float* p) {
+  V4f v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
 // Current cells moved into the reference frame by the running estimate.
 struct Moved {
   std::vector<Eigen::Vector3f> p, n;
@@ -147,12 +159,23 @@ MatchResult associate(const CellCloud& reference, const AssociationGrid& grid,
   const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
   radius = std::min(radius, grid.pad());
   const int* grid_index = grid.index().data();
-  const Eigen::Vector3f* grid_mean = grid.mean().data();
-  const Eigen::Vector3f* grid_normal = grid.normal().data();
+  const float* gmx = grid.plane(AssociationGrid::kMeanX);
+  const float* gmy = grid.plane(AssociationGrid::kMeanY);
+  const float* gmz = grid.plane(AssociationGrid::kMeanZ);
+  const float* gnx = grid.plane(AssociationGrid::kNormalX);
+  const float* gny = grid.plane(AssociationGrid::kNormalY);
+  const float* gnz = grid.plane(AssociationGrid::kNormalZ);
   const int grid_pad = grid.pad(), grid_stride = grid.stride();
   // Overlap mask: a cell predicted within one cell of the border of the reference view may have
   // its true partner outside it, so it is not matched at all.
   const float margin = config.overlap_mask ? cs : 0.0f;
+  constexpr float kNone = std::numeric_limits<float>::max();
+  // Lanes of the window's chunks of four that lie inside the window row (2 radius + 1 slots).
+  const int width = 2 * radius + 1;
+  std::vector<V4i> lane_mask((width + 3) / 4);
+  for (std::size_t j = 0; j < lane_mask.size(); ++j)
+    for (int k = 0; k < 4; ++k) lane_mask[j][k] = static_cast<int>(4 * j) + k < width ? -1 : 0;
+  const V4i lane = {0, 1, 2, 3};
 
   for (std::size_t c = 0; c < n_cur; ++c) {
     const Eigen::Vector3f& p = moved.p[c];
@@ -162,31 +185,43 @@ MatchResult associate(const CellCloud& reference, const AssociationGrid& grid,
     const int gx = static_cast<int>((u + 0.5f) / cs);
     const int gy = static_cast<int>((v + 0.5f) / cs);
     const Eigen::Vector3f& n = moved.n[c];
-    int best = -1;
-    float best_c = std::numeric_limits<float>::max();
+    const V4f px = splat(p.x()), py = splat(p.y()), pz = splat(p.z());
+    const V4f nx = splat(n.x()), ny = splat(n.y()), nz = splat(n.z());
+    // Four slots of a window row at a time (empty slots fail the distance gate, lanes past the
+    // row's end are masked), each lane keeping its cheapest candidate. Slot indices run in
+    // row-major order, so of candidates of equal cost the one with the lowest slot is the first
+    // in that order, and wins.
+    V4f lane_cost = splat(kNone);
+    V4i lane_slot = {-1, -1, -1, -1};
     for (int y = gy - radius; y <= gy + radius; ++y) {
-      const int* row = grid_index + static_cast<std::size_t>(y + grid_pad) * grid_stride + grid_pad;
-      for (int x = gx - radius; x <= gx + radius; ++x) {
-        const int r = row[x];
-        if (r < 0) continue;
-        const Eigen::Vector3f d = p - grid_mean[r];
-        const float d2 = d.squaredNorm();
-        if (d2 > dist_max2) continue;
-        const Eigen::Vector3f& nr = grid_normal[r];
-        const float cosang = n.dot(nr);
-        if (cosang < cos_min) continue;
+      const int row = (y + grid_pad) * grid_stride + grid_pad;
+      for (int j = 0, x = gx - radius; x <= gx + radius; ++j, x += 4) {
+        const int s = row + x;
+        const V4f dx = px - load4(gmx + s), dy = py - load4(gmy + s), dz = pz - load4(gmz + s);
+        const V4f rnx = load4(gnx + s), rny = load4(gny + s), rnz = load4(gnz + s);
+        const V4f d2 = dx * dx + dy * dy + dz * dz;
+        const V4f cosang = nx * rnx + ny * rny + nz * rnz;
         // Rank candidates by their offset along the reference surface, not by the full 3D
         // distance: picking the nearest of several noisy depths selects whichever noise happens
         // to agree with the current estimate, which pins the estimate where it is. The normal
         // term is |n - n_r|^2 = 2 - 2 cos for unit normals.
-        const float along = d.dot(nr);
-        const float cost = d2 - along * along + w2 * (2.0f - 2.0f * cosang);
-        if (cost < best_c) {
-          best_c = cost;
-          best = r;
-        }
+        const V4f along = dx * rnx + dy * rny + dz * rnz;
+        const V4f cost = d2 - along * along + w2 * (2.0f - 2.0f * cosang);
+        const V4i better =
+            (d2 <= dist_max2) & (cosang >= cos_min) & (cost < lane_cost) & lane_mask[j];
+        lane_cost = better ? cost : lane_cost;
+        lane_slot = better ? lane + s : lane_slot;
       }
     }
+    float best_c = lane_cost[0];
+    int best_slot = lane_slot[0];
+    for (int k = 1; k < 4; ++k) {
+      if (lane_cost[k] < best_c || (lane_cost[k] == best_c && lane_slot[k] < best_slot)) {
+        best_c = lane_cost[k];
+        best_slot = lane_slot[k];
+      }
+    }
+    const int best = best_slot < 0 ? -1 : grid_index[best_slot];
     if (best >= 0) {
       best_ref[c] = best;
       best_cost[c] = best_c;
@@ -258,19 +293,21 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
   double h[21] = {0};
   Vector6d g = Vector6d::Zero();
-  double sq = 0.0, wsum = 0.0, range2 = 0.0, misalign = 0.0;
+  double sq = 0.0, range2 = 0.0, misalign = 0.0;
+  LeverMoments levers;
   for (const auto& [r, c] : m.pairs) {
     const Eigen::Vector3d q = reference.cells[r].mean_C.cast<double>();
     const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
     const Eigen::Vector3d p = moved.p[c].cast<double>();
     const double e = n.dot(p - q);
     sq += e * e;
-    range2 += (p - c_ref).squaredNorm();
+    const Eigen::Vector3d lever = p - c_ref;
+    range2 += lever.squaredNorm();
     misalign += 1.0 - std::min(1.0, n.dot(moved.n[c].cast<double>()));
-    const Eigen::Vector3d pxn = (p - c_ref).cross(n);
+    const Eigen::Vector3d pxn = lever.cross(n);
     const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
     const double w = huberWeight(e, config);
-    wsum += w;
+    levers.add(lever, w);
     int k = 0;
     for (int i = 0; i < 6; ++i) {
       const double wJi = w * J[i];
@@ -286,19 +323,12 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   }
   const std::size_t n_pairs = std::max<std::size_t>(1, m.pairs.size());
   *rms = std::sqrt(sq / n_pairs);
-  *analysis = analyseNormalEquations(H, wsum, std::sqrt(range2 / n_pairs));
+  *analysis = analyseNormalEquations(H, levers.wsum, std::sqrt(range2 / n_pairs));
   if (config.degeneracy.noise_margin > 0.0) {
     // What the normals' noise alone puts into each eigen-direction (DegeneracyConfig): 1 - cos
     // of two independently noisy normals averages twice one normal's in-plane variance.
-    NoiseFloorAccumulator acc(*analysis);
-    for (const auto& [r, c] : m.pairs) {
-      const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
-      const Eigen::Vector3d p = moved.p[c].cast<double>();
-      acc.add(p - c_ref, n,
-              huberWeight(n.dot(p - reference.cells[r].mean_C.cast<double>()), config));
-    }
-    applyNoiseFloors(analysis, acc.floors(0.5 * misalign / n_pairs), sq / n_pairs,
-                     config.degeneracy);
+    applyNoiseFloors(analysis, noiseFloors(*analysis, H, levers, 0.5 * misalign / n_pairs),
+                     sq / n_pairs, config.degeneracy);
   }
   const Vector6d y = solveConstrained(*analysis, g);  // [omega; u]
   xi->head<3>() = y.head<3>();
@@ -352,16 +382,23 @@ void AssociationGrid::build(const CellCloud& reference, int radius_cells) {
   reference_ = &reference;
   pad_ = radius_cells;
   stride_ = reference.grid_w + 2 * radius_cells;
-  index_.assign(static_cast<std::size_t>(stride_) * (reference.grid_h + 2 * radius_cells), -1);
-  mean_.clear();
-  normal_.clear();
-  mean_.reserve(reference.cells.size());
-  normal_.reserve(reference.cells.size());
+  cells_ = reference.cells.size();
+  const std::size_t n_slots =
+      static_cast<std::size_t>(stride_) * (reference.grid_h + 2 * radius_cells);
+  index_.assign(n_slots, -1);
+  plane_size_ = n_slots + kLanePad;
+  // 1e15 m: its squared distance to any real point (~1e30) stays finite in float and fails
+  // every gate.
+  planes_.assign(6 * plane_size_, 0.0f);
+  std::fill(planes_.begin(), planes_.begin() + 3 * plane_size_, 1e15f);
   for (std::size_t i = 0; i < reference.cells.size(); ++i) {
     const Cell& c = reference.cells[i];
-    index_[static_cast<std::size_t>(c.gy + pad_) * stride_ + c.gx + pad_] = static_cast<int>(i);
-    mean_.push_back(c.mean_C);
-    normal_.push_back(c.normal_C);
+    const std::size_t s = static_cast<std::size_t>(c.gy + pad_) * stride_ + c.gx + pad_;
+    index_[s] = static_cast<int>(i);
+    for (int k = 0; k < 3; ++k) {
+      planes_[k * plane_size_ + s] = c.mean_C(k);
+      planes_[(3 + k) * plane_size_ + s] = c.normal_C(k);
+    }
   }
 }
 

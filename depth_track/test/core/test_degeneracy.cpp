@@ -110,6 +110,52 @@ TEST(Degeneracy, CovarianceSaysWhatTheViewFixed) {
   EXPECT_TRUE((plain.gain.array() == 1.0).all());
 }
 
+// The closed-form noise floors equal their definition summed pair by pair: for each eigenvector
+// e = [L omega; u], the weighted mean of |v|^2 - (v.n)^2 with v = omega x l + u, times sigma_n2.
+TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> uw(0.2, 1.0);
+  const Eigen::Vector3d c(0.3, -0.1, 0.2);
+  std::vector<Eigen::Vector3d> lever, normal;
+  std::vector<double> weight;
+  Matrix6d H = Matrix6d::Zero();
+  LeverMoments m;
+  double range2 = 0.0;
+  for (int i = 0; i < 200; ++i) {
+    // Points 1-3 m ahead, normals mostly facing the camera, as a view gives them.
+    const Eigen::Vector3d p(g(rng), 0.5 * g(rng), 2.0 + 0.5 * g(rng));
+    const Eigen::Vector3d n = Eigen::Vector3d(0.3 * g(rng), 0.3 * g(rng), -1.0).normalized();
+    const double w = uw(rng);
+    const Eigen::Vector3d l = p - c;
+    Vector6d J;
+    J << l.cross(n), n;
+    H += w * J * J.transpose();
+    m.add(l, w);
+    range2 += l.squaredNorm();
+    lever.push_back(l);
+    normal.push_back(n);
+    weight.push_back(w);
+  }
+  const DegeneracyAnalysis a = analyseNormalEquations(H, m.wsum, std::sqrt(range2 / 200));
+  const double sigma_n2 = 0.004;
+  const Vector6d closed = noiseFloors(a, H, m, sigma_n2);
+  for (int k = 0; k < 6; ++k) {
+    const Eigen::Vector3d omega = a.eigenvectors.col(k).head<3>() / a.length_scale_m;
+    const Eigen::Vector3d u = a.eigenvectors.col(k).tail<3>();
+    double sum = 0.0, wsum = 0.0;
+    for (std::size_t i = 0; i < lever.size(); ++i) {
+      const Eigen::Vector3d v = omega.cross(lever[i]) + u;
+      sum += weight[i] * (v.squaredNorm() - v.dot(normal[i]) * v.dot(normal[i]));
+      wsum += weight[i];
+    }
+    const double pairwise = sum * sigma_n2 / wsum;
+    EXPECT_GT(pairwise, 0.0) << k;
+    EXPECT_NEAR(closed(k), pairwise, 1e-9 * std::max(1.0, pairwise)) << k;
+  }
+  EXPECT_TRUE(noiseFloors(a, H, LeverMoments{}, sigma_n2).isZero());
+}
+
 // The rendered wall_slide run with L515 noise: every frame of the three seconds square on to the
 // wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over that stretch stays
 // within 5 mm per second of it, and the frames at rest looking at the furnished side (0-0.6 s)

@@ -67,21 +67,28 @@ struct DegeneracyAnalysis {
 DegeneracyAnalysis analyseNormalEquations(const Matrix6d& H, double weight_sum,
                                           double length_scale_m);
 
-/// Sums, over a registration's pairs, what normal noise adds along each eigenvector of `a`.
-class NoiseFloorAccumulator {
- public:
-  explicit NoiseFloorAccumulator(const DegeneracyAnalysis& a);
-  /// One pair: lever = p - c (point minus camera centre, metres), its normal n (unit), weight w.
-  void add(const Eigen::Vector3d& lever, const Eigen::Vector3d& n, double w);
-  /// Per eigenvector: sigma_n2 (variance of a normal's in-plane component) times the weighted
-  /// mean of |w_perp|^2.
-  Vector6d floors(double sigma_n2) const;
-
- private:
-  Eigen::Matrix<double, 3, 6> rot_, trans_;  // eigenvectors' [omega / L] and u parts
-  Vector6d sum_ = Vector6d::Zero();
-  double wsum_ = 0.0;
+/// Weighted moments of a registration's levers (pair point minus camera centre, metres), summed
+/// with the same weights as its normal matrix: with that matrix they give the noise floors in
+/// closed form (noiseFloors), without a second pass over the pairs.
+struct LeverMoments {
+  double wsum = 0.0;                                   ///< sum w
+  Eigen::Vector3d s1 = Eigen::Vector3d::Zero();        ///< sum w l
+  Eigen::Matrix3d s2 = Eigen::Matrix3d::Zero();        ///< sum w l l^T
+  void add(const Eigen::Vector3d& lever, double w) {
+    wsum += w;
+    s1 += w * lever;
+    s2 += w * lever * lever.transpose();
+  }
 };
+
+/// Per eigenvector e of `a`: sigma_n2 (variance of a normal's in-plane component) times the
+/// weighted mean over the pairs of |v_perp|^2, v = omega x l + u the displacement the mode gives
+/// a pair's point and v_perp its part in the pair's plane. With A = [-[l]x / L, I] (v = A e in
+/// the analysis's scaled coordinates) that sum is e^T (sum w A^T A - S H S) e, since A^T n is
+/// the pair's scaled Jacobian row: `H` is the unscaled normal matrix in [omega; u] the analysis
+/// was made from and `m` the levers' moments under the same weights. Zero when no weight.
+Vector6d noiseFloors(const DegeneracyAnalysis& a, const Matrix6d& H, const LeverMoments& m,
+                     double sigma_n2);
 
 /// Sets the analysis's noise floors and the gains and degenerate count that follow from them,
 /// for residual variance sigma_e2_m2 per pair and the config's prior.

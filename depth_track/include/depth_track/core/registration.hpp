@@ -38,8 +38,8 @@ struct RegistrationConfig {
   double fm_eps_m2 = 1e-6;      ///< covariance regulariser, = PcaConfig::min_eigenvalue_m2
   int max_iterations = 30;      ///< ICP iterations (re-matching after each update)
   int patience = 3;             ///< stop after this many iterations without a lower error
-  double tolerance_m = 1e-4;    ///< stop when an update moves points less than this, metres
-  double tolerance_rad = 1e-4;  ///< ... and rotates less than this, radians
+  double tolerance_m = 2e-4;    ///< stop when an update moves points less than this, metres
+  double tolerance_rad = 2e-4;  ///< ... and rotates less than this, radians
   bool robust = true;           ///< Huber weighting of residuals
   double huber_delta_m = 0.01;  ///< Huber threshold, metres
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
@@ -91,26 +91,32 @@ struct RegistrationResult {
 /// the reference it was built for, which must outlive it unchanged.
 class AssociationGrid {
  public:
+  /// Components of the per-slot planes (plane()).
+  enum Component { kMeanX, kMeanY, kMeanZ, kNormalX, kNormalY, kNormalZ };
+  /// Lanes read past a window row's last slot (the association scores slots four at a time).
+  static constexpr int kLanePad = 3;
   AssociationGrid() = default;
   AssociationGrid(const CellCloud& reference, int radius_cells) { build(reference, radius_cells); }
   /// (Re)builds for `reference` with a window of radius_cells (reusing the buffers).
   void build(const CellCloud& reference, int radius_cells);
   /// True when built for this very cloud (same address and cell count) and radius.
   bool isFor(const CellCloud& reference, int radius_cells) const {
-    return reference_ == &reference && pad_ == radius_cells &&
-           mean_.size() == reference.cells.size();
+    return reference_ == &reference && pad_ == radius_cells && cells_ == reference.cells.size();
   }
   int pad() const { return pad_; }
   int stride() const { return stride_; }
   const std::vector<int>& index() const { return index_; }  ///< -1 = no reference cell
-  const std::vector<Eigen::Vector3f>& mean() const { return mean_; }
-  const std::vector<Eigen::Vector3f>& normal() const { return normal_; }
+  /// One component of every slot's reference cell (reference frame), in the layout of index()
+  /// and followed by kLanePad unused slots: a slot without a cell has a mean so far away (1e15 m)
+  /// that no distance gate passes it, and a zero normal.
+  const float* plane(Component k) const { return planes_.data() + k * plane_size_; }
 
  private:
   const CellCloud* reference_ = nullptr;
   int pad_ = 0, stride_ = 0;
+  std::size_t cells_ = 0, plane_size_ = 0;
   std::vector<int> index_;
-  std::vector<Eigen::Vector3f> mean_, normal_;
+  std::vector<float> planes_;
 };
 
 /// Förstner–Moonen distance between two cells' covariances (same frame): sum of log^2 of the
