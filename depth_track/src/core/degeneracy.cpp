@@ -45,8 +45,7 @@ Vector6d noiseFloors(const DegeneracyAnalysis& a, const Matrix6d& H, const Lever
                      double sigma_n2) {
   if (!(m.wsum > 0.0)) return Vector6d::Zero();
   const double L = a.length_scale_m;
-  Eigen::Matrix3d s1x;
-  s1x << 0, -m.s1.z(), m.s1.y(), m.s1.z(), 0, -m.s1.x(), -m.s1.y(), m.s1.x(), 0;
+  const Eigen::Matrix3d s1x = skew(m.s1);
   Matrix6d M;
   M.topLeftCorner<3, 3>() = (m.s2.trace() * Eigen::Matrix3d::Identity() - m.s2) / (L * L);
   M.topRightCorner<3, 3>() = s1x / L;

@@ -4,6 +4,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -172,9 +173,9 @@ MatchResult associate(const CellCloud& reference, const AssociationGrid& grid,
   constexpr float kNone = std::numeric_limits<float>::max();
   // Lanes of the window's chunks of four that lie inside the window row (2 radius + 1 slots).
   const int width = 2 * radius + 1;
-  std::vector<V4i> lane_mask((width + 3) / 4);
-  for (std::size_t j = 0; j < lane_mask.size(); ++j)
-    for (int k = 0; k < 4; ++k) lane_mask[j][k] = static_cast<int>(4 * j) + k < width ? -1 : 0;
+  std::array<V4i, (2 * 16 + 1 + 3) / 4> lane_mask{};  // radius <= 16 (config validation)
+  for (int j = 0; 4 * j < width; ++j)
+    for (int k = 0; k < 4; ++k) lane_mask[j][k] = 4 * j + k < width ? -1 : 0;
   const V4i lane = {0, 1, 2, 3};
 
   for (std::size_t c = 0; c < n_cur; ++c) {
@@ -335,8 +336,7 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   xi->tail<3>() = y.tail<3>() - y.head<3>().cross(c_ref);
   // [omega; u] = A [omega; v] with u = v + omega x c = v - [c]x omega, so H_v = A^T H_u A.
   Matrix6d A = Matrix6d::Identity();
-  A.block<3, 3>(3, 0) << 0, c_ref.z(), -c_ref.y(), -c_ref.z(), 0, c_ref.x(), c_ref.y(), -c_ref.x(),
-      0;
+  A.block<3, 3>(3, 0) = -skew(c_ref);
   *normal_matrix = A.transpose() * H * A;
   return xi->allFinite();
 }
@@ -363,9 +363,7 @@ bool solvePointToPoint(const CellCloud& reference, const Moved& moved, const Mat
   double wsum = 0.0;
   for (std::size_t i = 0; i < p.size(); ++i) {
     rr += w[i] * (p[i].squaredNorm() * Eigen::Matrix3d::Identity() - p[i] * p[i].transpose());
-    Eigen::Matrix3d px;
-    px << 0, -p[i].z(), p[i].y(), p[i].z(), 0, -p[i].x(), -p[i].y(), p[i].x(), 0;
-    rt += w[i] * px;
+    rt += w[i] * skew(p[i]);
     wsum += w[i];
   }
   normal_matrix->topLeftCorner<3, 3>() = rr;

@@ -9,6 +9,13 @@ namespace depth_track {
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
+/// Cross-product matrix: skew(v) * x = v.cross(x).
+inline Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
 /// Exact SO(3) exponential of a rotation vector (radians). Thread-safe.
 inline Eigen::Matrix3d expSO3(const Eigen::Vector3d& omega) {
   const double theta = omega.norm();
