@@ -1,12 +1,11 @@
 #include "depth_track/core/tum_io.hpp"
 
-#include <png.h>
+#include "depth_track/core/png16.hpp"
 
 #include <sys/stat.h>
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
-#include <csetjmp>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -19,55 +18,12 @@
 namespace depth_track {
 namespace {
 
-// ---- libpng plumbing ----------------------------------------------------------------------------
-// libpng reports errors by longjmp. Every C++ object of the functions below is constructed before
-// setjmp, and the message is copied into a plain buffer, so the jump skips no destructor.
-// Refuse absurd header sizes before allocating (a corrupt or hostile file); 256 Mpx is far
-// beyond any depth camera.
-constexpr unsigned long long kMaxPixels = 1ull << 28;
-
-struct PngErrorBuffer {
-  char message[256] = {0};
-};
-
-void pngError(png_structp png, png_const_charp msg) {
-  auto* buf = static_cast<PngErrorBuffer*>(png_get_error_ptr(png));
-  std::snprintf(buf->message, sizeof(buf->message), "%s", msg);
-  png_longjmp(png, 1);
-}
-
-void pngWarning(png_structp, png_const_charp) {}  // warnings (e.g. unknown chunks) are harmless
-
 struct FileCloser {
   void operator()(std::FILE* f) const {
     if (f != nullptr) std::fclose(f);
   }
 };
 using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
-
-const char* colourTypeName(int colour_type) {
-  switch (colour_type) {
-    case PNG_COLOR_TYPE_GRAY:
-      return "grayscale";
-    case PNG_COLOR_TYPE_GRAY_ALPHA:
-      return "grayscale+alpha";
-    case PNG_COLOR_TYPE_RGB:
-      return "RGB";
-    case PNG_COLOR_TYPE_RGB_ALPHA:
-      return "RGBA";
-    case PNG_COLOR_TYPE_PALETTE:
-      return "palette";
-    default:
-      return "unknown colour type";
-  }
-}
-
-bool hostIsLittleEndian() {
-  const std::uint16_t one = 1;
-  unsigned char first;
-  std::memcpy(&first, &one, 1);
-  return first == 1;
-}
 
 // ---- text parsing
 // ---------------------------------------------------------------------------------
@@ -128,100 +84,35 @@ std::ifstream openText(const std::string& path, const char* what) {
 std::vector<std::uint16_t> readPng16(const std::string& path, int* width, int* height) {
   FilePtr file(std::fopen(path.c_str(), "rb"));
   if (!file) throw FileFormatError(path + ": cannot open PNG (" + std::strerror(errno) + ")");
-  unsigned char signature[8];
-  if (std::fread(signature, 1, 8, file.get()) != 8 || png_sig_cmp(signature, 0, 8) != 0)
-    throw FileFormatError(path + ": not a PNG file (bad signature)");
-
-  PngErrorBuffer err;
-  std::vector<std::uint16_t> pixels;
-  std::vector<png_bytep> rows;
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &err, pngError, pngWarning);
-  if (png == nullptr) throw FileFormatError(path + ": cannot create a PNG reader");
-  png_infop info = png_create_info_struct(png);
-  if (info == nullptr) {
-    png_destroy_read_struct(&png, nullptr, nullptr);
-    throw FileFormatError(path + ": cannot create a PNG reader");
+  std::vector<std::uint8_t> bytes;
+  std::uint8_t chunk[1 << 16];
+  std::size_t n = 0;
+  while ((n = std::fread(chunk, 1, sizeof(chunk), file.get())) > 0)
+    bytes.insert(bytes.end(), chunk, chunk + n);
+  if (std::ferror(file.get()))
+    throw FileFormatError(path + ": cannot read PNG (" + std::strerror(errno) + ")");
+  try {
+    Png16Image image = decodePng16(bytes.data(), bytes.size());
+    *width = image.width;
+    *height = image.height;
+    return std::move(image.pixels);
+  } catch (const Png16Error& e) {
+    throw FileFormatError(path + ": " + e.what());
   }
-  // 0 = ok, 1 = libpng error, 2 = wrong pixel format (details in `found`).
-  volatile int status = 0;
-  char found[128] = {0};
-  png_uint_32 w = 0, h = 0;
-  if (setjmp(png_jmpbuf(png))) {
-    status = 1;
-  } else {
-    png_init_io(png, file.get());
-    png_set_sig_bytes(png, 8);
-    png_read_info(png, info);
-    int bit_depth = 0, colour_type = 0;
-    png_get_IHDR(png, info, &w, &h, &bit_depth, &colour_type, nullptr, nullptr, nullptr);
-    if (bit_depth != 16 || colour_type != PNG_COLOR_TYPE_GRAY) {
-      std::snprintf(found, sizeof(found), "%d-bit %s", bit_depth, colourTypeName(colour_type));
-      status = 2;
-    } else if (static_cast<unsigned long long>(w) * h > kMaxPixels) {
-      std::snprintf(found, sizeof(found), "a %lux%lu image (more than %llu pixels)",
-                    static_cast<unsigned long>(w), static_cast<unsigned long>(h), kMaxPixels);
-      status = 2;
-    } else {
-      if (hostIsLittleEndian()) png_set_swap(png);  // PNG stores 16-bit samples big-endian
-      png_set_interlace_handling(png);              // Adam7 files are read whole as well
-      png_read_update_info(png, info);
-      pixels.resize(static_cast<std::size_t>(w) * h);
-      rows.resize(h);
-      for (png_uint_32 v = 0; v < h; ++v)
-        rows[v] = reinterpret_cast<png_bytep>(pixels.data() + static_cast<std::size_t>(v) * w);
-      png_read_image(png, rows.data());
-      png_read_end(png, nullptr);
-    }
-  }
-  png_destroy_read_struct(&png, &info, nullptr);
-  if (status == 1) throw FileFormatError(path + ": corrupt PNG (" + err.message + ")");
-  if (status == 2)
-    throw FileFormatError(path + ": expected a 16-bit grayscale depth PNG, found " +
-                          std::string(found));
-  *width = static_cast<int>(w);
-  *height = static_cast<int>(h);
-  return pixels;
 }
 
 void writePng16(const std::string& path, const std::vector<std::uint16_t>& data, int width,
                 int height) {
-  if (width <= 0 || height <= 0 ||
-      data.size() != static_cast<std::size_t>(width) * static_cast<std::size_t>(height)) {
-    std::ostringstream s;
-    s << path << ": cannot write PNG: " << data.size() << " values for a " << width << "x" << height
-      << " image";
-    throw FileFormatError(s.str());
+  std::vector<std::uint8_t> bytes;
+  try {
+    bytes = encodePng16(data.data(), data.size(), width, height);
+  } catch (const Png16Error& e) {
+    throw FileFormatError(path + ": " + e.what());
   }
   FilePtr file(std::fopen(path.c_str(), "wb"));
   if (!file) throw FileFormatError(path + ": cannot create PNG (" + std::strerror(errno) + ")");
-  PngErrorBuffer err;
-  std::vector<png_bytep> rows(static_cast<std::size_t>(height));
-  for (int v = 0; v < height; ++v)
-    rows[v] = reinterpret_cast<png_bytep>(const_cast<std::uint16_t*>(data.data()) +
-                                          static_cast<std::size_t>(v) * width);
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &err, pngError, pngWarning);
-  if (png == nullptr) throw FileFormatError(path + ": cannot create a PNG writer");
-  png_infop info = png_create_info_struct(png);
-  if (info == nullptr) {
-    png_destroy_write_struct(&png, nullptr);
-    throw FileFormatError(path + ": cannot create a PNG writer");
-  }
-  volatile bool failed = false;
-  if (setjmp(png_jmpbuf(png))) {
-    failed = true;
-  } else {
-    png_init_io(png, file.get());
-    png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 16,
-                 PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-                 PNG_FILTER_TYPE_DEFAULT);
-    png_write_info(png, info);
-    if (hostIsLittleEndian()) png_set_swap(png);
-    png_write_image(png, rows.data());
-    png_write_end(png, nullptr);
-  }
-  png_destroy_write_struct(&png, &info);
-  if (failed) throw FileFormatError(path + ": PNG write failed (" + err.message + ")");
-  if (std::fflush(file.get()) != 0)
+  if (std::fwrite(bytes.data(), 1, bytes.size(), file.get()) != bytes.size() ||
+      std::fflush(file.get()) != 0)
     throw FileFormatError(path + ": PNG write failed (" + std::strerror(errno) + ")");
 }
 

@@ -1,11 +1,10 @@
 #include "depth_track/ros/compressed_depth.hpp"
 
-#include <png.h>
+#include "depth_track/core/png16.hpp"
 
 #include <boost/make_shared.hpp>
 
 #include <cmath>
-#include <csetjmp>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -13,10 +12,6 @@
 namespace depth_track {
 namespace compressed_depth {
 namespace {
-
-// A hostile or corrupt header must not make us allocate gigabytes: 64 Mpx is far beyond any
-// depth camera.
-constexpr unsigned long long kMaxPixels = 1ull << 26;
 
 enum class Kind { kU16, kF32 };
 
@@ -33,145 +28,24 @@ std::string trim(const std::string& s) {
   return s.substr(a, s.find_last_not_of(" \t") - a + 1);
 }
 
-bool hostIsLittleEndian() {
-  const std::uint16_t one = 1;
-  unsigned char first;
-  std::memcpy(&first, &one, 1);
-  return first == 1;
-}
-
-// ---- libpng in memory ---------------------------------------------------------------------------
-// libpng reports errors by longjmp. The functions that call setjmp keep every C++ object outside
-// the jump's reach (constructed before, reached through a pointer), and messages go into a plain
-// buffer, so a jump skips no destructor and reads no clobbered local.
-struct PngState {
-  char message[200] = {0};
-  const std::uint8_t* in = nullptr;  // reading: the payload
-  std::size_t in_size = 0, in_pos = 0;
-  std::vector<std::uint8_t>* out = nullptr;  // writing: the encoded bytes
-  bool out_of_memory = false;
-};
-
-void pngError(png_structp png, png_const_charp msg) {
-  auto* st = static_cast<PngState*>(png_get_error_ptr(png));
-  std::snprintf(st->message, sizeof(st->message), "%s", msg);
-  png_longjmp(png, 1);
-}
-void pngWarning(png_structp, png_const_charp) {}  // e.g. unknown chunks: harmless
-
-void pngRead(png_structp png, png_bytep dst, png_size_t n) {
-  auto* st = static_cast<PngState*>(png_get_io_ptr(png));
-  if (st->in_size - st->in_pos < n) png_error(png, "the payload ends inside the PNG (truncated)");
-  std::memcpy(dst, st->in + st->in_pos, n);
-  st->in_pos += n;
-}
-void pngWrite(png_structp png, png_bytep src, png_size_t n) {
-  auto* st = static_cast<PngState*>(png_get_io_ptr(png));
+// The project's one PNG codec (core/png16), with the payload's context on its errors.
+std::vector<std::uint8_t> encodePayload(const std::vector<std::uint16_t>& pixels, int width,
+                                        int height, int level) {
   try {
-    st->out->insert(st->out->end(), src, src + n);
-  } catch (const std::bad_alloc&) {
-    st->out_of_memory = true;
+    return encodePng16(pixels.data(), pixels.size(), width, height, level);
+  } catch (const Png16Error& e) {
+    throw CodecError(e.what());
   }
-  if (st->out_of_memory) png_error(png, "out of memory");
-}
-void pngFlush(png_structp) {}
-
-/// Appends `rows` (host-order 16-bit samples, `width` each) as a 16-bit grayscale PNG to *out.
-/// False with st->message on a libpng error.
-bool writePng(png_structp png, png_infop info, png_bytep* rows, png_uint_32 width,
-              png_uint_32 height, int level, PngState* st) {
-  if (setjmp(png_jmpbuf(png))) return false;
-  png_set_write_fn(png, st, pngWrite, pngFlush);
-  png_set_IHDR(png, info, width, height, 16, PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE,
-               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  png_set_compression_level(png, level);
-  png_write_info(png, info);
-  if (hostIsLittleEndian()) png_set_swap(png);  // PNG stores 16-bit samples big-endian
-  png_write_image(png, rows);
-  png_write_end(png, nullptr);
-  return true;
 }
 
-std::vector<std::uint8_t> encodePng16(const std::vector<std::uint16_t>& pixels, int width,
-                                      int height, int level) {
-  std::vector<std::uint8_t> out;
-  out.reserve(pixels.size());
-  std::vector<png_bytep> rows(static_cast<std::size_t>(height));
-  for (int v = 0; v < height; ++v)
-    rows[v] = reinterpret_cast<png_bytep>(const_cast<std::uint16_t*>(pixels.data()) +
-                                          static_cast<std::size_t>(v) * width);
-  PngState st;
-  st.out = &out;
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &st, pngError, pngWarning);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (!info) {
-    png_destroy_write_struct(&png, nullptr);
-    throw CodecError("cannot create a PNG writer");
+Png16Image decodePayload(const std::uint8_t* data, std::size_t size) {
+  try {
+    return decodePng16(data, size);
+  } catch (const Png16Error& e) {
+    if (e.kind() == Png16Error::Kind::kNotPng)
+      throw CodecError(std::string("the payload after the header is ") + e.what());
+    throw CodecError(e.what());
   }
-  const bool ok = writePng(png, info, rows.data(), static_cast<png_uint_32>(width),
-                           static_cast<png_uint_32>(height), level, &st);
-  png_destroy_write_struct(&png, &info);
-  if (!ok) throw CodecError(std::string("PNG encoding failed: ") + st.message);
-  return out;
-}
-
-struct DecodedPng {
-  std::vector<std::uint16_t> pixels;
-  std::vector<png_bytep> rows;
-  png_uint_32 width = 0, height = 0;
-  char wrong_format[120] = {0};  // set when the PNG is valid but not 16-bit grayscale
-};
-
-bool readPng(png_structp png, png_infop info, PngState* st, DecodedPng* d) {
-  if (setjmp(png_jmpbuf(png))) return false;
-  png_set_read_fn(png, st, pngRead);
-  png_read_info(png, info);
-  int bit_depth = 0, colour_type = 0;
-  png_get_IHDR(png, info, &d->width, &d->height, &bit_depth, &colour_type, nullptr, nullptr,
-               nullptr);
-  if (bit_depth != 16 || colour_type != PNG_COLOR_TYPE_GRAY) {
-    std::snprintf(d->wrong_format, sizeof(d->wrong_format), "a %d-bit PNG of colour type %d",
-                  bit_depth, colour_type);
-    return true;
-  }
-  if (static_cast<unsigned long long>(d->width) * d->height > kMaxPixels) {
-    std::snprintf(d->wrong_format, sizeof(d->wrong_format), "a %lux%lu PNG (more than %llu px)",
-                  static_cast<unsigned long>(d->width), static_cast<unsigned long>(d->height),
-                  kMaxPixels);
-    return true;
-  }
-  if (hostIsLittleEndian()) png_set_swap(png);
-  png_set_interlace_handling(png);
-  png_read_update_info(png, info);
-  d->pixels.resize(static_cast<std::size_t>(d->width) * d->height);
-  d->rows.resize(d->height);
-  for (png_uint_32 v = 0; v < d->height; ++v)
-    d->rows[v] =
-        reinterpret_cast<png_bytep>(d->pixels.data() + static_cast<std::size_t>(v) * d->width);
-  png_read_image(png, d->rows.data());
-  png_read_end(png, nullptr);
-  return true;
-}
-
-DecodedPng decodePng16(const std::uint8_t* data, std::size_t size) {
-  if (size < 8 || png_sig_cmp(const_cast<png_bytep>(data), 0, 8) != 0)
-    throw CodecError("the payload after the header is not a PNG (bad signature)");
-  PngState st;
-  st.in = data;
-  st.in_size = size;
-  DecodedPng d;
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &st, pngError, pngWarning);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (!info) {
-    png_destroy_read_struct(&png, nullptr, nullptr);
-    throw CodecError("cannot create a PNG reader");
-  }
-  const bool ok = readPng(png, info, &st, &d);
-  png_destroy_read_struct(&png, &info, nullptr);
-  if (!ok) throw CodecError(std::string("corrupt PNG: ") + st.message);
-  if (d.wrong_format[0] != '\0')
-    throw CodecError(std::string("expected a 16-bit grayscale PNG, found ") + d.wrong_format);
-  return d;
 }
 
 void checkLayout(const sensor_msgs::Image& image, std::size_t bytes_per_px) {
@@ -181,7 +55,7 @@ void checkLayout(const sensor_msgs::Image& image, std::size_t bytes_per_px) {
   if (image.width == 0 || image.height == 0)
     throw CodecError("image is empty (" + std::to_string(image.width) + "x" +
                      std::to_string(image.height) + ")");
-  if (static_cast<unsigned long long>(image.width) * image.height > kMaxPixels)
+  if (static_cast<unsigned long long>(image.width) * image.height > kPng16MaxPixels)
     throw CodecError("image of " + std::to_string(image.width) + "x" +
                      std::to_string(image.height) + " px is too large");
   if (image.step < image.width * bytes_per_px)
@@ -267,7 +141,7 @@ sensor_msgs::CompressedImage encode(const sensor_msgs::Image& image, const Encod
   out.header = image.header;
   out.format = image.encoding + "; compressedDepth png";
   putHeader(header, &out.data);
-  const std::vector<std::uint8_t> png = encodePng16(pixels, w, h, c.png_level);
+  const std::vector<std::uint8_t> png = encodePayload(pixels, w, h, c.png_level);
   out.data.insert(out.data.end(), png.begin(), png.end());
   return out;
 }
@@ -301,8 +175,8 @@ sensor_msgs::ImagePtr decode(const sensor_msgs::CompressedImage& message) {
     throw CodecError("header quantisation a = " + std::to_string(hd.quant_a) +
                      ", b = " + std::to_string(hd.quant_b) +
                      " cannot be decoded (a must be positive and b below 1)");
-  const DecodedPng png =
-      decodePng16(message.data.data() + kHeaderBytes, message.data.size() - kHeaderBytes);
+  const Png16Image png =
+      decodePayload(message.data.data() + kHeaderBytes, message.data.size() - kHeaderBytes);
 
   auto image = boost::make_shared<sensor_msgs::Image>();
   image->header = message.header;

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "depth_track/core/png16.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "../shared_data.hpp"
 
@@ -135,6 +136,37 @@ TEST(Png16, EveryTruncationAndCorruptionIsAnError) {
     }
   }
   EXPECT_EQ(undetected, 0);
+}
+
+TEST(Png16, InMemoryCodecRoundTripsAndNamesEachKindOfError) {
+  // The codec tum_io and the compressedDepth transport share: every level round-trips
+  // exactly; each failure carries the kind its callers map to their own messages.
+  std::vector<std::uint16_t> data(7 * 3);
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<std::uint16_t>(65535 - i * 3001);
+  for (int level : {-1, 0, 9}) {
+    const auto bytes = encodePng16(data.data(), data.size(), 7, 3, level);
+    const Png16Image back = decodePng16(bytes.data(), bytes.size());
+    EXPECT_EQ(back.width, 7);
+    EXPECT_EQ(back.height, 3);
+    EXPECT_EQ(back.pixels, data) << "level " << level;
+  }
+  auto kindOf = [](auto&& f) {
+    try {
+      f();
+    } catch (const Png16Error& e) {
+      return e.kind();
+    }
+    ADD_FAILURE() << "no Png16Error";
+    return Png16Error::Kind::kEncode;
+  };
+  using K = Png16Error::Kind;
+  EXPECT_EQ(kindOf([&] { encodePng16(data.data(), data.size(), 7, 2); }), K::kEncode);
+  EXPECT_EQ(kindOf([&] { encodePng16(data.data(), data.size(), 7, 3, 10); }), K::kEncode);
+  const std::uint8_t text[] = "not a png at all";
+  EXPECT_EQ(kindOf([&] { decodePng16(text, sizeof(text)); }), K::kNotPng);
+  EXPECT_EQ(kindOf([&] { decodePng16(nullptr, 0); }), K::kNotPng);
+  const auto bytes = encodePng16(data.data(), data.size(), 7, 3);
+  EXPECT_EQ(kindOf([&] { decodePng16(bytes.data(), bytes.size() / 2); }), K::kCorrupt);
 }
 
 TEST(Png16, InterlacedFileIsReadWhole) {
