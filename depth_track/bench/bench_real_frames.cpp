@@ -1,0 +1,167 @@
+// The tracking core on real 640x480 Kinect frames, one core: whole tracker frames (reduction +
+// registration + bookkeeping) through a TUM sequence with the defaults and their automatic noise
+// adaptation, and the reduction alone with the adapted settings. Frames are decoded before the
+// clock starts, so PNG decoding is not counted (track_sequence's per-frame figures leave it out
+// as well). Issue 12's target: tracking <= 5 ms median per frame.
+//
+//   DT_BENCH_TUM=/path/to/tum_folder DT_BENCH_CAMERA=fr1|fr2|fr3 dt_bench_real_frames
+//
+// Without DT_BENCH_TUM it looks for the shared TUM fr3/teddy sequence (DT_SHARED_DIR/data, then
+// ../shared/data beside the checkout, then /work/shared/data) and reports an error row when
+// there is none. DT_BENCH_FRAMES (default 90) caps the frames loaded.
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "../tools/tum_cameras.hpp"
+#include "depth_track/core/tracker.hpp"
+#include "depth_track/core/tum_io.hpp"
+
+using namespace depth_track;
+
+namespace {
+
+std::string env(const char* name, const std::string& fallback = "") {
+  const char* v = std::getenv(name);
+  return v != nullptr && *v != '\0' ? std::string(v) : fallback;
+}
+
+std::string findTeddy() {
+  std::vector<std::string> dirs;
+  if (const std::string shared = env("DT_SHARED_DIR"); !shared.empty()) {
+    dirs.push_back(shared + "/data/tum_fr3_teddy");
+  } else {
+    std::error_code ec;
+    const auto checkout = std::filesystem::weakly_canonical(DT_SOURCE_DIR, ec).parent_path();
+    dirs.push_back((checkout.parent_path() / "shared/data/tum_fr3_teddy").string());
+    dirs.push_back((checkout.parent_path().parent_path() / "shared/data/tum_fr3_teddy").string());
+    dirs.push_back("/work/shared/data/tum_fr3_teddy");
+  }
+  for (const auto& d : dirs)
+    if (std::filesystem::exists(d + "/depth.txt")) return d;
+  return "";
+}
+
+struct Sequence {
+  std::string folder, error;
+  PinholeIntrinsics intrinsics;
+  std::vector<DepthImage> frames;
+  std::vector<double> stamps;
+  Sequence() {
+    folder = env("DT_BENCH_TUM", findTeddy());
+    const std::string camera = env("DT_BENCH_CAMERA", env("DT_BENCH_TUM").empty() ? "fr3" : "");
+    if (folder.empty()) {
+      error = "no TUM sequence: set DT_BENCH_TUM (and DT_BENCH_CAMERA) or provide shared data";
+      return;
+    }
+    const auto k = tumIntrinsics(camera);
+    if (!k) {
+      error = camera.empty() ? "DT_BENCH_TUM is set: give DT_BENCH_CAMERA (fr1, fr2 or fr3) too"
+                             : "DT_BENCH_CAMERA '" + camera + "': expected fr1, fr2 or fr3";
+      return;
+    }
+    intrinsics = *k;
+    const int cap = std::max(2, std::atoi(env("DT_BENCH_FRAMES", "90").c_str()));
+    try {
+      for (const TumFrame& f : readTumFrameList(folder + "/depth.txt")) {
+        if (static_cast<int>(frames.size()) >= cap) break;
+        frames.push_back(loadTumDepth(f.path, kTumDepthScaleM, DepthRange()));
+        stamps.push_back(f.stamp_s);
+      }
+    } catch (const std::exception& e) {
+      error = e.what();
+      return;
+    }
+    if (frames.size() < 2)
+      error = folder + ": " + std::to_string(frames.size()) + " depth frames, at least 2 needed";
+  }
+};
+
+const Sequence& sequence() {
+  static const Sequence s;
+  return s;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+// One iteration tracks every loaded frame after the first with a tracker made (and noise-adapted
+// on frame 0) outside the clock. per_frame is the mean CPU time per frame (one thread);
+// frame_ms_median (the target's figure) and the stage counters are medians, over the last
+// iteration's frames, of FrameStatus's wall-clock times.
+void BM_RealTrackerFrames(benchmark::State& state) {
+  const Sequence& s = sequence();
+  if (!s.error.empty()) {
+    state.SkipWithError(s.error.c_str());
+    return;
+  }
+  std::vector<double> total_ms, reduce_ms, register_ms;
+  int lost = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    Tracker tracker(s.intrinsics, TrackerConfig());
+    tracker.track(s.frames[0], s.stamps[0]);
+    total_ms.clear();
+    reduce_ms.clear();
+    register_ms.clear();
+    lost = 0;
+    state.ResumeTiming();
+    for (std::size_t i = 1; i < s.frames.size(); ++i) {
+      const FrameStatus st = tracker.track(s.frames[i], s.stamps[i]);
+      total_ms.push_back(st.ms_total);
+      reduce_ms.push_back(st.ms_reduce);
+      register_ms.push_back(st.ms_register);
+      lost += st.tracked ? 0 : 1;
+    }
+  }
+  const double frames = static_cast<double>(s.frames.size() - 1);
+  state.counters["per_frame"] = benchmark::Counter(
+      frames, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+  state.counters["frame_ms_median"] = median(total_ms);
+  state.counters["reduce_ms_median"] = median(reduce_ms);
+  state.counters["register_ms_median"] = median(register_ms);
+  state.counters["frames"] = frames;
+  state.counters["lost"] = lost;
+  state.SetLabel(std::filesystem::path(s.folder).filename().string());
+}
+BENCHMARK(BM_RealTrackerFrames)->Unit(benchmark::kMillisecond);
+
+// The reduction alone on every loaded frame, with the settings the noise adaptation chose.
+void BM_RealReduce(benchmark::State& state) {
+  const Sequence& s = sequence();
+  if (!s.error.empty()) {
+    state.SkipWithError(s.error.c_str());
+    return;
+  }
+  Tracker tracker(s.intrinsics, TrackerConfig());
+  tracker.track(s.frames[0], s.stamps[0]);
+  const PcaConfig pca = tracker.config().reducerConfig();
+  const WorkerPool pool(1);
+  std::size_t cells = 0;
+  for (auto _ : state) {
+    for (const DepthImage& d : s.frames) {
+      CellCloud c = reduceToCells(d, s.intrinsics, pca, pool);
+      cells += c.cells.size();
+      benchmark::DoNotOptimize(c);
+    }
+  }
+  const double frames = static_cast<double>(s.frames.size());
+  state.counters["per_frame"] = benchmark::Counter(
+      frames, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+  state.counters["cells_per_frame"] =
+      static_cast<double>(cells) / (frames * static_cast<double>(state.iterations()));
+  state.counters["normal_radius_cells"] = pca.normal_radius_cells;
+  state.SetLabel(std::filesystem::path(s.folder).filename().string());
+}
+BENCHMARK(BM_RealReduce)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+
+BENCHMARK_MAIN();
