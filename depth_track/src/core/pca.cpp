@@ -86,6 +86,25 @@ bool smallestEigenvector(const Eigen::Matrix3d& adj, Eigen::Vector3d start, Eige
 
 enum class CellOutcome { kKept, kInvalid, kDegenerate, kEdge };
 
+enum class Planarity { kPlanar, kCollinear, kUndecided };
+
+// The planarity test lambda1 > kMinPlanarity * lambda2 (ascending eigenvalues of a PSD matrix)
+// decided, where it can be, from the trace T and the sum E2 of the principal 2x2 minors
+// (E2 = l0 l1 + l0 l2 + l1 l2) without solving for the eigenvalues. With l2 <= T and
+// l1 l2 <= E2 <= 3 l1 l2: E2 > 3 eps T^2 implies the test passes and E2 <= eps T^2 / 9 that it
+// fails. Margins of a third and a half keep rounding out of both; between them, and for a zero or
+// non-finite trace, the caller solves.
+Planarity planarityFromInvariants(const Eigen::Matrix3d& S) {
+  const double T = S(0, 0) + S(1, 1) + S(2, 2);
+  const double E2 = S(0, 0) * S(1, 1) - S(0, 1) * S(0, 1) + S(0, 0) * S(2, 2) - S(0, 2) * S(0, 2) +
+                    S(1, 1) * S(2, 2) - S(1, 2) * S(1, 2);
+  if (!(T > 0.0) || !std::isfinite(T) || !std::isfinite(E2)) return Planarity::kUndecided;
+  const double T2 = T * T;
+  if (E2 > 4.0 * kMinPlanarity * T2) return Planarity::kPlanar;
+  if (E2 < kMinPlanarity * T2 / 18.0) return Planarity::kCollinear;
+  return Planarity::kUndecided;
+}
+
 // Reduces one grid cell in a single pass over its pixels: sums of vertices taken relative to
 // the first valid vertex (so the covariance does not cancel metre-sized offsets), and the
 // occluding-edge test against the left and upper neighbours. u_ray/v_ray hold (u - cx)/fx per
@@ -169,14 +188,25 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   // read (degeneracy, surface variation): skip its eigenvectors, and let pooling start from the
   // viewing ray.
   const bool values_only = config.normal_radius_cells > 0 && !config.compute_inv_sqrt;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-  es.computeDirect(cov, values_only ? Eigen::EigenvaluesOnly : Eigen::ComputeEigenvectors);
-  const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
-  Eigen::Matrix3d vecs = values_only ? Eigen::Matrix3d::Zero() : es.eigenvectors();
-  Eigen::Vector3d normal =
-      values_only ? Eigen::Vector3d(-mean.normalized()) : Eigen::Vector3d(vecs.col(0).normalized());
-  if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
-    return CellOutcome::kDegenerate;
+  // Without the spectra (and without eigenvectors) most cells need no eigensolver at all.
+  const bool spectra = config.cell_spectra || !values_only;
+  const Planarity planarity = spectra ? Planarity::kUndecided : planarityFromInvariants(cov);
+  if (planarity == Planarity::kCollinear) return CellOutcome::kDegenerate;
+  Eigen::Vector3d lambda = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d vecs = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d normal = -mean.normalized();
+  if (planarity == Planarity::kUndecided) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(cov, values_only ? Eigen::EigenvaluesOnly : Eigen::ComputeEigenvectors);
+    lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
+    if (!values_only) {
+      vecs = es.eigenvectors();
+      normal = vecs.col(0).normalized();
+    }
+    if (!(lambda(1) > kMinPlanarity * lambda(2)) || !(lambda(2) > 0.0))
+      return CellOutcome::kDegenerate;
+    if (!spectra) lambda.setZero();  // the same cells either way, and none with spectra
+  }
   if (normal.dot(mean) > 0.0) normal = -normal;  // face the camera (which sits at the origin)
   if (!normal.allFinite()) return CellOutcome::kDegenerate;
   vecs.col(0) = normal;
@@ -198,7 +228,7 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   }
   const double sum = lambda.sum();
   cell->surface_variation = static_cast<float>(sum > 0.0 ? lambda(0) / sum : 0.0);
-  cell->det = static_cast<float>(lambda.prod());
+  cell->det = static_cast<float>(lambda.prod());  // 0 without spectra
   return CellOutcome::kKept;
 }
 
@@ -284,6 +314,7 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
 
   CellCloud cloud;
   cloud.cell_size = config.cell_size;
+  cloud.has_spectra = config.cell_spectra || config.normal_radius_cells == 0 || config.compute_inv_sqrt;
   cloud.grid_w = depth.width / config.cell_size;
   cloud.grid_h = depth.height / config.cell_size;
   const int n_cells = cloud.grid_w * cloud.grid_h;

@@ -18,6 +18,7 @@ std::vector<std::string> TrackerConfig::validate(const PinholeIntrinsics& intrin
 PcaConfig TrackerConfig::reducerConfig() const {
   PcaConfig p = pca;
   p.compute_inv_sqrt = registration.method == RegistrationMethod::kCellSearch;
+  p.cell_spectra = false;  // registration reads no cell's eigenvalues
   return p;
 }
 

@@ -241,3 +241,62 @@ TEST(Pca, ValuesOnlyPathGivesTheSameCells) {
   }
   EXPECT_LT(worst, 1e-7);  // 1 - cos: the same pooled normals to ~0.03 deg
 }
+
+TEST(Pca, WithoutSpectraTheSameCellsAreKeptAndTheFieldsAreZero) {
+  // The tracker's reduction (cell_spectra off) decides the planarity test from the covariance's
+  // invariants where it can: it must keep and prune exactly the cells the eigensolver does. The
+  // frame mixes noisy planes, cells with holes, and cells whose valid pixels are one row: exact
+  // depths make that row collinear (pruned), depths with noise from 0.01 to 1 mm along the rays
+  // make it nearly collinear, across the band the invariants leave to the solver.
+  const DepthImage clean =
+      renderPlanes(depth_track::test::cornerRoom(), l515(), Eigen::Isometry3d::Identity());
+  DepthImage depth = clean;
+  std::mt19937 rng(11);
+  std::normal_distribution<float> unit(0.0f, 1.0f);
+  std::uniform_int_distribution<int> kind(0, 5);
+  std::uniform_real_distribution<double> log_sigma(std::log(1e-5), std::log(1e-3));
+  const int n = 5;
+  for (int gy = 0; gy < depth.height / n; ++gy)
+    for (int gx = 0; gx < depth.width / n; ++gx) {
+      const int k = kind(rng);
+      const float sigma = k == 3 ? 0.0f : k == 4 ? static_cast<float>(std::exp(log_sigma(rng))) : 0.002f;
+      for (int v = 0; v < n; ++v)
+        for (int u = 0; u < n; ++u) {
+          float& d = depth.at(gx * n + u, gy * n + v);
+          const bool keep = k < 3 || ((k == 3 || k == 4) && v == 2) || (k == 5 && (u + v) % 3 == 0);
+          d = keep && d > 0.0f ? d + sigma * unit(rng) : 0.0f;
+        }
+    }
+  PcaConfig with;
+  with.cell_size = n;
+  with.normal_radius_cells = 2;
+  with.compute_inv_sqrt = false;
+  with.min_valid_fraction = 0.2;
+  PcaConfig without = with;
+  without.cell_spectra = false;
+  const CellCloud a = reduceToCells(depth, l515(), with), b = reduceToCells(depth, l515(), without);
+  EXPECT_TRUE(a.has_spectra);
+  EXPECT_FALSE(b.has_spectra);
+  EXPECT_GT(a.stats.pruned_degenerate, 300);  // the exact rows and the flattest noisy ones
+  // Kept cells inside the undecided band (lambda1 / lambda2 below 4e-3): the solver's cases.
+  int near_collinear = 0;
+  for (const Cell& c : a.cells) near_collinear += c.eigenvalues(1) < 4e-3f * c.eigenvalues(2);
+  EXPECT_GT(near_collinear, 50);
+  EXPECT_EQ(a.stats.pruned_degenerate, b.stats.pruned_degenerate);
+  EXPECT_EQ(a.stats.pruned_invalid, b.stats.pruned_invalid);
+  EXPECT_EQ(a.grid_index, b.grid_index);
+  ASSERT_EQ(a.cells.size(), b.cells.size());
+  for (std::size_t i = 0; i < a.cells.size(); ++i) {
+    ASSERT_TRUE(a.cells[i].mean_C == b.cells[i].mean_C) << i;
+    ASSERT_TRUE(a.cells[i].cov == b.cells[i].cov) << i;
+    ASSERT_TRUE(a.cells[i].normal_C == b.cells[i].normal_C) << i;
+    ASSERT_GT(a.cells[i].eigenvalues(2), 0.0f);
+    ASSERT_TRUE(b.cells[i].eigenvalues.isZero()) << i;
+    ASSERT_EQ(b.cells[i].surface_variation, 0.0f);
+    ASSERT_EQ(b.cells[i].det, 0.0f);
+  }
+  // With eigenvectors asked for (Cell Search) the spectra are always filled.
+  PcaConfig fm = without;
+  fm.compute_inv_sqrt = true;
+  EXPECT_TRUE(reduceToCells(depth, l515(), fm).has_spectra);
+}

@@ -185,6 +185,35 @@ TEST(Conversions, CellCloudRoundTripIsBitExact) {
   }
 }
 
+TEST(Conversions, CellsReducedWithoutSpectraArePublishedWithThem) {
+  // The tracker's reduction leaves eigenvalues and surface variation out; the published cloud
+  // solves them from the covariance, so rviz and other readers see the same fields.
+  const PinholeIntrinsics K = sim::l515Intrinsics();
+  const Eigen::Isometry3d T_W_C = sim::makeRun("xtest1_05_chair").T_W_C.front();
+  PcaConfig with;
+  with.compute_inv_sqrt = false;
+  PcaConfig without = with;
+  without.cell_spectra = false;
+  const DepthImage depth = chairFrame(K, T_W_C);
+  const CellCloud a = reduceToCells(depth, K, with), b = reduceToCells(depth, K, without);
+  ASSERT_FALSE(b.has_spectra);
+  std_msgs::Header h;
+  h.frame_id = "camera_depth_optical_frame";
+  const auto from_a = conv::cellsFromCloud(*conv::cellsToCloud(a, h), K.width, K.height);
+  const auto from_b = conv::cellsFromCloud(*conv::cellsToCloud(b, h), K.width, K.height);
+  EXPECT_TRUE(from_b->has_spectra);
+  ASSERT_EQ(from_a->cells.size(), from_b->cells.size());
+  ASSERT_GT(from_a->cells.size(), 5000u);
+  for (std::size_t i = 0; i < from_a->cells.size(); ++i) {
+    const Cell &x = from_a->cells[i], &y = from_b->cells[i];
+    // From the float covariance rather than the double one: equal to float precision of the
+    // largest eigenvalue.
+    ASSERT_LT((x.eigenvalues - y.eigenvalues).norm(), 1e-5f * x.eigenvalues(2)) << i;
+    ASSERT_NEAR(x.surface_variation, y.surface_variation, 1e-3f) << i;
+    ASSERT_GT(y.eigenvalues(2), 0.0f) << i;
+  }
+}
+
 TEST(Conversions, BadCellCloudsAreNamed) {
   CellCloud c;
   c.cell_size = 5, c.grid_w = 4, c.grid_h = 3;

@@ -42,6 +42,9 @@ struct CellCloud {
   std::vector<Cell> cells;
   std::vector<int> grid_index;
   ReductionStats stats;
+  /// False when the cells' eigenvalues, surface_variation and det were not computed (left 0;
+  /// PcaConfig::cell_spectra).
+  bool has_spectra = true;
   double stamp_s = 0.0;  ///< time of the depth frame the cells come from, seconds
   std::string frame_id;  ///< optical frame of the camera that saw them (cells are in it)
 
@@ -81,6 +84,13 @@ struct PcaConfig {
   double min_eigenvalue_m2 = 1e-6;
   /// Fill Cell::cov_inv_sqrt (needed by the Förstner–Moonen gate of Cell Search only).
   bool compute_inv_sqrt = true;
+  /// Fill each cell's eigenvalues, surface_variation and det. Registration reads none of them:
+  /// the tracker turns this off (TrackerConfig::reducerConfig), and with pooled normals and no
+  /// cov_inv_sqrt the planarity test then comes from the covariance's invariants, the 3x3
+  /// eigensolver running only for the few cells those leave undecided (the same cells are kept
+  /// either way). The fields are then 0 and CellCloud::has_spectra is false; a published cells
+  /// cloud computes them from the covariance when it is written.
+  bool cell_spectra = true;
 
   /// Every problem for frames of width x height pixels (a size that does not tile is named).
   std::vector<std::string> validate(int width, int height) const;
