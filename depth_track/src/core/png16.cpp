@@ -118,7 +118,7 @@ bool writePng(png_structp png, png_infop info, png_bytep* rows, png_uint_32 widt
 Png16Image decodePng16(const std::uint8_t* data, std::size_t size) {
   using Kind = Png16Error::Kind;
   if (data == nullptr || size < 8 || png_sig_cmp(const_cast<png_bytep>(data), 0, 8) != 0)
-    throw Png16Error(Kind::kNotPng, "not a PNG (bad signature)");
+    throw Png16Error(Kind::kNotPng, "not a PNG file (bad signature)");
   PngState st;
   st.in = data;
   st.in_size = size;
