@@ -6,9 +6,9 @@
 //
 //   DT_BENCH_TUM=/path/to/tum_folder DT_BENCH_CAMERA=fr1|fr2|fr3 dt_bench_real_frames
 //
-// Without DT_BENCH_TUM it looks for the shared TUM fr3/teddy sequence (DT_SHARED_DIR/data, then
-// ../shared/data beside the checkout, then /work/shared/data) and reports an error row when
-// there is none. DT_BENCH_FRAMES (default 90) caps the frames loaded.
+// Without DT_BENCH_TUM it looks for the shared TUM fr3/teddy sequence where the tests do
+// (test/shared_data_paths.hpp) and reports an error row when there is none. DT_BENCH_FRAMES
+// (default 90) caps the frames loaded.
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
@@ -17,7 +17,9 @@
 #include <string>
 #include <vector>
 
+#include "../test/shared_data_paths.hpp"
 #include "../tools/tum_cameras.hpp"
+#include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tum_io.hpp"
 
@@ -30,29 +32,13 @@ std::string env(const char* name, const std::string& fallback = "") {
   return v != nullptr && *v != '\0' ? std::string(v) : fallback;
 }
 
-std::string findTeddy() {
-  std::vector<std::string> dirs;
-  if (const std::string shared = env("DT_SHARED_DIR"); !shared.empty()) {
-    dirs.push_back(shared + "/data/tum_fr3_teddy");
-  } else {
-    std::error_code ec;
-    const auto checkout = std::filesystem::weakly_canonical(DT_SOURCE_DIR, ec).parent_path();
-    dirs.push_back((checkout.parent_path() / "shared/data/tum_fr3_teddy").string());
-    dirs.push_back((checkout.parent_path().parent_path() / "shared/data/tum_fr3_teddy").string());
-    dirs.push_back("/work/shared/data/tum_fr3_teddy");
-  }
-  for (const auto& d : dirs)
-    if (std::filesystem::exists(d + "/depth.txt")) return d;
-  return "";
-}
-
 struct Sequence {
   std::string folder, error;
   PinholeIntrinsics intrinsics;
   std::vector<DepthImage> frames;
   std::vector<double> stamps;
   Sequence() {
-    folder = env("DT_BENCH_TUM", findTeddy());
+    folder = env("DT_BENCH_TUM", dt_test::findSharedData("data/tum_fr3_teddy", "depth.txt"));
     const std::string camera = env("DT_BENCH_CAMERA", env("DT_BENCH_TUM").empty() ? "fr3" : "");
     if (folder.empty()) {
       error = "no TUM sequence: set DT_BENCH_TUM (and DT_BENCH_CAMERA) or provide shared data";
@@ -86,12 +72,6 @@ const Sequence& sequence() {
   return s;
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
-}
-
 // One iteration tracks every loaded frame after the first with a tracker made (and noise-adapted
 // on frame 0) outside the clock. per_frame is the mean CPU time per frame (one thread);
 // frame_ms_median (the target's figure) and the stage counters are medians, over the last
@@ -102,7 +82,7 @@ void BM_RealTrackerFrames(benchmark::State& state) {
     state.SkipWithError(s.error.c_str());
     return;
   }
-  std::vector<double> total_ms, reduce_ms, register_ms;
+  RunningStats total_ms(s.frames.size()), reduce_ms(s.frames.size()), register_ms(s.frames.size());
   int lost = 0;
   for (auto _ : state) {
     state.PauseTiming();
@@ -115,18 +95,18 @@ void BM_RealTrackerFrames(benchmark::State& state) {
     state.ResumeTiming();
     for (std::size_t i = 1; i < s.frames.size(); ++i) {
       const FrameStatus st = tracker.track(s.frames[i], s.stamps[i]);
-      total_ms.push_back(st.ms_total);
-      reduce_ms.push_back(st.ms_reduce);
-      register_ms.push_back(st.ms_register);
+      total_ms.add(st.ms_total);
+      reduce_ms.add(st.ms_reduce);
+      register_ms.add(st.ms_register);
       lost += st.tracked ? 0 : 1;
     }
   }
   const double frames = static_cast<double>(s.frames.size() - 1);
   state.counters["per_frame"] = benchmark::Counter(
       frames, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
-  state.counters["frame_ms_median"] = median(total_ms);
-  state.counters["reduce_ms_median"] = median(reduce_ms);
-  state.counters["register_ms_median"] = median(register_ms);
+  state.counters["frame_ms_median"] = total_ms.median();
+  state.counters["reduce_ms_median"] = reduce_ms.median();
+  state.counters["register_ms_median"] = register_ms.median();
   state.counters["frames"] = frames;
   state.counters["lost"] = lost;
   state.SetLabel(std::filesystem::path(s.folder).filename().string());

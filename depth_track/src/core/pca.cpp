@@ -189,7 +189,7 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   // viewing ray.
   const bool values_only = config.normal_radius_cells > 0 && !config.compute_inv_sqrt;
   // Without the spectra (and without eigenvectors) most cells need no eigensolver at all.
-  const bool spectra = config.cell_spectra || !values_only;
+  const bool spectra = config.computesSpectra();
   const Planarity planarity = spectra ? Planarity::kUndecided : planarityFromInvariants(cov);
   if (planarity == Planarity::kCollinear) return CellOutcome::kDegenerate;
   Eigen::Vector3d lambda = Eigen::Vector3d::Zero();
@@ -217,7 +217,6 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   cell->mean_C = mean.cast<float>();
   cell->normal_C = normal.cast<float>();
   cell->cov = cov.cast<float>();
-  cell->eigenvalues = lambda.cast<float>();
   cell->eigenvectors = vecs.cast<float>();
   if (config.compute_inv_sqrt) {
     const Eigen::Vector3d reg = lambda.array() + config.min_eigenvalue_m2;
@@ -226,9 +225,10 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   } else {
     cell->cov_inv_sqrt.setZero();
   }
-  const double sum = lambda.sum();
-  cell->surface_variation = static_cast<float>(sum > 0.0 ? lambda(0) / sum : 0.0);
-  cell->det = static_cast<float>(lambda.prod());  // 0 without spectra
+  const CellSpectrum spectrum = spectrumFromEigenvalues(lambda);  // zeros without spectra
+  cell->eigenvalues = spectrum.eigenvalues;
+  cell->surface_variation = spectrum.surface_variation;
+  cell->det = spectrum.det;
   return CellOutcome::kKept;
 }
 
@@ -301,6 +301,21 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
 
 }  // namespace
 
+CellSpectrum spectrumFromEigenvalues(const Eigen::Vector3d& lambda) {
+  CellSpectrum s;
+  s.eigenvalues = lambda.cast<float>();
+  const double sum = lambda.sum();
+  s.surface_variation = static_cast<float>(sum > 0.0 ? lambda(0) / sum : 0.0);
+  s.det = static_cast<float>(lambda.prod());
+  return s;
+}
+
+CellSpectrum spectrumOf(const Eigen::Matrix3f& cov) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+  es.computeDirect(cov.cast<double>(), Eigen::EigenvaluesOnly);
+  return spectrumFromEigenvalues(es.eigenvalues().cwiseMax(0.0));
+}
+
 CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
                         const PcaConfig& config, int threads) {
   return reduceToCells(depth, intrinsics, config, WorkerPool(std::max(1, threads)));
@@ -314,7 +329,7 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
 
   CellCloud cloud;
   cloud.cell_size = config.cell_size;
-  cloud.has_spectra = config.cell_spectra || config.normal_radius_cells == 0 || config.compute_inv_sqrt;
+  cloud.has_spectra = config.computesSpectra();
   cloud.grid_w = depth.width / config.cell_size;
   cloud.grid_h = depth.height / config.cell_size;
   const int n_cells = cloud.grid_w * cloud.grid_h;

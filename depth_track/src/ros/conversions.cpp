@@ -216,20 +216,14 @@ sensor_msgs::PointCloud2Ptr cellsToCloud(const CellCloud& cells, const std_msgs:
     CellPoint& p = pts[static_cast<std::size_t>(c.gy) * cells.grid_w + c.gx];
     p.x = c.mean_C.x(), p.y = c.mean_C.y(), p.z = c.mean_C.z();
     p.normal_x = c.normal_C.x(), p.normal_y = c.normal_C.y(), p.normal_z = c.normal_C.z();
-    Eigen::Vector3f eig = c.eigenvalues;
-    float curvature = c.surface_variation;
-    if (!cells.has_spectra) {
-      // Reduced without them (the tracker's reduction): solved here from the covariance, so
-      // the published fields mean the same either way.
-      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-      es.computeDirect(c.cov.cast<double>(), Eigen::EigenvaluesOnly);
-      const Eigen::Vector3d l = es.eigenvalues().cwiseMax(0.0);
-      eig = l.cast<float>();
-      curvature = static_cast<float>(l.sum() > 0.0 ? l(0) / l.sum() : 0.0);
-    }
-    p.curvature = curvature;
+    // Reduced without them (the tracker's reduction): solved here from the covariance, so the
+    // published fields mean the same either way.
+    const CellSpectrum sp = cells.has_spectra
+                                ? CellSpectrum{c.eigenvalues, c.surface_variation, c.det}
+                                : spectrumOf(c.cov);
+    p.curvature = sp.surface_variation;
     packSym(c.cov, p.cov);
-    p.eig[0] = eig(0), p.eig[1] = eig(1), p.eig[2] = eig(2);
+    p.eig[0] = sp.eigenvalues(0), p.eig[1] = sp.eigenvalues(1), p.eig[2] = sp.eigenvalues(2);
     packSym(c.cov_inv_sqrt, p.isq);
     p.n_valid = c.n_valid;
   }

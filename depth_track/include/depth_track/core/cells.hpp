@@ -91,10 +91,27 @@ struct PcaConfig {
   /// either way). The fields are then 0 and CellCloud::has_spectra is false; a published cells
   /// cloud computes them from the covariance when it is written.
   bool cell_spectra = true;
+  /// Whether reduceToCells fills those fields under this config: cell_spectra on, or the
+  /// eigensolver runs for every cell anyway (no pooling, or cov_inv_sqrt asked for).
+  bool computesSpectra() const {
+    return cell_spectra || normal_radius_cells == 0 || compute_inv_sqrt;
+  }
 
   /// Every problem for frames of width x height pixels (a size that does not tile is named).
   std::vector<std::string> validate(int width, int height) const;
 };
+
+/// A cell's spectrum fields: eigenvalues (ascending, m^2), surface_variation and det.
+struct CellSpectrum {
+  Eigen::Vector3f eigenvalues = Eigen::Vector3f::Zero();
+  float surface_variation = 0.f;
+  float det = 0.f;
+};
+/// The fields from the ascending eigenvalues of a cell's covariance (negatives already clamped).
+CellSpectrum spectrumFromEigenvalues(const Eigen::Vector3d& lambda);
+/// The fields solved from a covariance: for the cells of a cloud reduced without them
+/// (CellCloud::has_spectra false). Thread-safe.
+CellSpectrum spectrumOf(const Eigen::Matrix3f& cov);
 
 /// Reduces a depth frame to PCA cells. Throws DepthInputError for a frame whose size does not
 /// match the intrinsics or a config that does not validate. Thread-safe (no shared state);
