@@ -42,6 +42,7 @@ std::vector<std::string> CellOdometryConfig::validate() const {
   if (velocity_window < 0 || velocity_window > 300)
     p.push_back("velocity_window must lie in [0, 300] frames");
   for (const auto& s : relocalise.validate()) p.push_back(s);
+  for (const auto& s : model.validate()) p.push_back(s);
   return p;
 }
 
@@ -69,6 +70,7 @@ CellOdometry::CellOdometry(const PinholeIntrinsics& intrinsics, const CellOdomet
   for (const auto& s : config.validate()) problems.push_back(s);
   if (!problems.empty())
     throw std::invalid_argument("cell odometry config: " + joinProblems(problems));
+  model_ = SurfaceModel(config.model);
   if (!T_W_C0.matrix().allFinite())
     throw std::invalid_argument("cell odometry: initial pose is not finite");
 }
@@ -79,12 +81,28 @@ void CellOdometry::setConfig(const CellOdometryConfig& config) {
     throw std::invalid_argument("cell odometry config: " + joinProblems(problems));
   const bool regrid = config.registration.match.search_radius_cells !=
                       config_.registration.match.search_radius_cells;
+  if (config.model.voxel_m != config_.model.voxel_m) model_ = SurfaceModel(config.model);
+  else model_.setConfig(config.model);
   config_ = config;
   if (regrid && reference_)
     grid_.build(*reference_, config_.registration.match.search_radius_cells);
+  if (regrid && raw_reference_)
+    raw_grid_.build(*raw_reference_, config_.registration.match.search_radius_cells);
+}
+
+void CellOdometry::setModelReference(const std::shared_ptr<const CellCloud>& cells,
+                                     ModelRefineStats* stats) {
+  if (!config_.model.enabled || model_.voxelCount() == 0) {
+    setReference(cells);
+    return;
+  }
+  setReference(std::make_shared<const CellCloud>(model_.refine(*cells, T_W_C_, stats)));
+  raw_reference_ = cells;
+  raw_grid_.build(*raw_reference_, config_.registration.match.search_radius_cells);
 }
 
 void CellOdometry::setReference(std::shared_ptr<const CellCloud> cells) {
+  raw_reference_.reset();
   reference_ = std::move(cells);
   T_W_Cref_ = T_W_C_;
   frames_since_refresh_ = 0;
@@ -98,12 +116,14 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   T_W_Cref_ = T_W_C_;
   velocity_T_Cprev_Ccur_ = Eigen::Isometry3d::Identity();
   reference_.reset();
+  raw_reference_.reset();
   last_cells_.reset();
   grid_ = AssociationGrid();
   state_ = TrackingState::kLost;
   frames_since_refresh_ = 0;
   history_.clear();
   prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
+  model_.clear();
 }
 
 void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
@@ -178,6 +198,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     }
     last_cells_ = cells;
     last_stamp_s_ = st.stamp_s;
+    if (config_.model.enabled) model_.integrate(*cells, T_W_C_);
     setReference(std::move(cells));
     st.tracked = true;
     st.new_keyframe = true;
@@ -208,6 +229,11 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     reg.failure = s.str();
   } else {
     reg = registerCells(*reference_, grid_, *cells, intrinsics_, guess, reg_config);
+    // A view that leaves directions unfixed is registered against the keyframe's own cells:
+    // along the directions it does fix, the model's voxel-sized planes blur the few edges
+    // that fix them.
+    if (raw_reference_ && reg.degeneracy.degenerate > 0)
+      reg = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, guess, reg_config);
   }
   st.ms_register = msSince(t1);
   timing_.add(st.ms_register);
@@ -301,8 +327,9 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
               overlap < config_.keyframe_min_overlap;
   }
   last_cells_ = cells;
+  if (st.tracked && config_.model.enabled) model_.integrate(*cells, T_W_C_);
   if (st.tracked && refresh) {
-    setReference(std::move(cells));
+    setModelReference(cells, &st.model);
     st.new_keyframe = true;
   }
   last_stamp_s_ = st.stamp_s;

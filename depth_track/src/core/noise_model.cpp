@@ -171,6 +171,11 @@ void NoiseCalibration::applyTo(CellOdometryConfig* odometry) const {
   odometry->registration.match.cos_min = adaptation.cos_min;
   odometry->registration.huber_delta_m = adaptation.huber_delta_m;
   odometry->max_error_rms_m = adaptation.max_error_rms_m;
+  odometry->registration.noise_sigma_const_m = noise.const_m;
+  odometry->registration.noise_sigma_quad_per_m = noise.quad_per_m;
+  odometry->registration.noise_ref_depth_m = z_ref_m;
+  odometry->model.noise_sigma_const_m = noise.const_m;
+  odometry->model.noise_sigma_quad_per_m = noise.quad_per_m;
 }
 
 void NoiseCalibration::applyToUnchanged(const CellOdometryConfig& before,

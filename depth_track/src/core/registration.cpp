@@ -51,6 +51,9 @@ std::vector<std::string> RegistrationConfig::validate() const {
   if (!(tolerance_m >= 0.0)) p.push_back("tolerance_m must be >= 0 m");
   if (!(tolerance_rad >= 0.0)) p.push_back("tolerance_rad must be >= 0 rad");
   if (!(huber_delta_m > 0.0)) p.push_back("huber_delta_m must be > 0 m");
+  if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
+    p.push_back("noise_sigma_const_m and noise_sigma_quad_per_m must be >= 0");
+  if (!(noise_ref_depth_m >= 0.0)) p.push_back("noise_ref_depth_m must be >= 0 m (0 = off)");
   if (min_matches < 6) p.push_back("min_matches must be >= 6 (six unknowns)");
   for (const auto& s : degeneracy.validate()) p.push_back(s);
   return p;
@@ -279,6 +282,27 @@ double huberWeight(double residual, const RegistrationConfig& config) {
   return a <= config.huber_delta_m ? 1.0 : config.huber_delta_m / a;
 }
 
+// The depth-noise weighting of RegistrationConfig: for a reference depth z, the pair's weight
+// factor and its Huber threshold.
+struct NoiseWeighting {
+  bool on = false;
+  double c = 0.0, q = 0.0, sigma_ref = 0.0, z_ref = 0.0;
+  explicit NoiseWeighting(const RegistrationConfig& config)
+      : c(config.noise_sigma_const_m), q(config.noise_sigma_quad_per_m), z_ref(config.noise_ref_depth_m) {
+    sigma_ref = c + q * z_ref * z_ref;
+    on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
+  }
+  // Huber weight of residual e at reference depth z, times the noise factor.
+  double weight(double e, double z, const RegistrationConfig& config) const {
+    if (!on || !(z > z_ref)) return huberWeight(e, config);
+    const double ratio = (c + q * z * z) / sigma_ref;  // > 1
+    const double a = std::abs(e);
+    const double delta = config.huber_delta_m * ratio;
+    const double huber = !config.robust || a <= delta ? 1.0 : delta / a;
+    return huber / (ratio * ratio);
+  }
+};
+
 // One point-to-plane Gauss-Newton step: minimises sum w (n_r . (p - q_r))^2 over the increment
 // [omega; v] with p' = p + omega x p + v, in the directions the pairs constrain (the analysis of
 // the normal equations decides which; in the others the increment is zero, so the estimate keeps
@@ -296,6 +320,7 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   Vector6d g = Vector6d::Zero();
   double sq = 0.0, range2 = 0.0, misalign = 0.0;
   LeverMoments levers;
+  const NoiseWeighting noise(config);
   for (const auto& [r, c] : m.pairs) {
     const Eigen::Vector3d q = reference.cells[r].mean_C.cast<double>();
     const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
@@ -307,7 +332,7 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
     misalign += 1.0 - std::min(1.0, n.dot(moved.n[c].cast<double>()));
     const Eigen::Vector3d pxn = lever.cross(n);
     const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
-    const double w = huberWeight(e, config);
+    const double w = noise.weight(e, q.z(), config);
     levers.add(lever, w);
     int k = 0;
     for (int i = 0; i < 6; ++i) {

@@ -113,6 +113,10 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> bool& { return c.registration.overlap_mask; }));
   p.push_back(num("min_matches", "", "fewer pairs = failed frame",
                   [](TrackerConfig& c) -> int& { return c.registration.min_matches; }));
+  p.push_back(num("noise_weighting", "",
+                  "pairs deeper than the calibration's reference depth weigh by their depth "
+                  "noise, (sigma(z_ref)/sigma(z))^2 (on/off; needs auto_noise)",
+                  [](TrackerConfig& c) -> bool& { return c.registration.noise_weighting; }));
   p.push_back(
       num("degeneracy_margin", "",
           "pose information below this many times its normal-noise floor counts as none; "
@@ -144,6 +148,24 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> bool& { return c.auto_noise; }));
   p.push_back(num("constant_velocity", "", "predict with the last motion (on/off)",
                   [](TrackerConfig& c) -> bool& { return c.constant_velocity; }));
+  // ---- registration model ----
+  p.push_back(num("model", "",
+                  "register keyframes against the tracked cells averaged per voxel (on/off)",
+                  [](TrackerConfig& c) -> bool& { return c.model.enabled; }));
+  p.push_back(num("model_voxel", "m", "voxel edge of the registration model",
+                  [](TrackerConfig& c) -> double& { return c.model.voxel_m; }));
+  p.push_back(num("model_max_weight", "", "observations after which a voxel follows new ones",
+                  [](TrackerConfig& c) -> int& { return c.model.max_weight; }));
+  p.push_back(num("model_min_weight", "", "observations before a voxel refines a keyframe cell",
+                  [](TrackerConfig& c) -> int& { return c.model.min_weight; }));
+  p.push_back(num("model_max_offset", "m",
+                  "a keyframe cell farther than this from the model plane keeps its own",
+                  [](TrackerConfig& c) -> double& { return c.model.max_offset_m; }));
+  p.push_back(num("model_max_offset_sigmas", "",
+                  "... or farther than this many depth-noise sigmas (auto_noise's model)",
+                  [](TrackerConfig& c) -> double& { return c.model.max_offset_sigmas; }));
+  p.push_back(num("model_cos_min", "", "... and one whose normal differs more from the plane's",
+                  [](TrackerConfig& c) -> double& { return c.model.cos_min; }));
   return p;
 }
 

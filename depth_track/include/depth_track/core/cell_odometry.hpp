@@ -16,6 +16,7 @@
 #include "depth_track/core/registration.hpp"
 #include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/se3.hpp"
+#include "depth_track/core/surface_model.hpp"
 
 namespace depth_track {
 
@@ -52,6 +53,9 @@ struct CellOdometryConfig {
   /// motion, as everywhere else.
   int velocity_window = 20;
   RelocaliseConfig relocalise;
+  /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
+  /// cells replaced by the model's planes where it is confident (SurfaceModel).
+  SurfaceModelConfig model;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -84,6 +88,8 @@ struct FrameStatus {
   Matrix6d covariance = Matrix6d::Zero();
   double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
   bool new_keyframe = false;  ///< the frame became the reference for the next ones
+  /// With new_keyframe and the model on: how the model refined the keyframe's cells.
+  ModelRefineStats model;
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
   /// Pose of the reference the frame was registered against (the frame of normal_matrix).
   Eigen::Isometry3d T_W_Cref = Eigen::Isometry3d::Identity();
@@ -154,9 +160,14 @@ class CellOdometry {
   const PinholeIntrinsics& intrinsics() const { return intrinsics_; }
   /// ms of registration per frame after the first (those with a reference).
   const RunningStats& timing() const { return timing_; }
+  /// The registration model (empty with config.model.enabled off).
+  const SurfaceModel& model() const { return model_; }
 
  private:
   void setReference(std::shared_ptr<const CellCloud> cells);
+  /// setReference with the model's planes in place of the cells' own (model on and not empty);
+  /// what it did goes to *stats.
+  void setModelReference(const std::shared_ptr<const CellCloud>& cells, ModelRefineStats* stats);
   /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
   std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s) const;
 
@@ -169,6 +180,10 @@ class CellOdometry {
   std::shared_ptr<const CellCloud> reference_;
   std::shared_ptr<const CellCloud> last_cells_;
   AssociationGrid grid_;  ///< built for *reference_ whenever it changes
+  /// With the model: the keyframe's own cells (reference_ holds them refined by the model) and
+  /// their grid; null when the reference is not refined.
+  std::shared_ptr<const CellCloud> raw_reference_;
+  AssociationGrid raw_grid_;
   TrackingState state_ = TrackingState::kLost;
   int frames_since_refresh_ = 0;
   double last_stamp_s_ = 0.0;
@@ -179,6 +194,7 @@ class CellOdometry {
   /// degeneracy weighing.
   double prior_var_m2_ = 1e-4;
   RunningStats timing_;
+  SurfaceModel model_;
 };
 
 }  // namespace depth_track

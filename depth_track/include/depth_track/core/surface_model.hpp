@@ -1,0 +1,98 @@
+#pragma once
+/// The odometry's registration model: a mean-surface layer of the cells tracked so far, hashed
+/// by voxel in the odometry's world frame. Each voxel keeps the running mean of the cell means
+/// that fell into it and of their normals (a local plane averaged over every frame that saw
+/// it). A new keyframe is registered against as the model sees it: each of its cells that lies
+/// near a confident model plane takes that plane (its mean moved along its ray onto the plane,
+/// the plane's normal), so the frames after it are registered against the surface averaged
+/// over the run instead of one frame's noise (frame-to-model tracking on cells). The occupancy
+/// map (VoxelMap, `.bt`) stays the map of record; this layer is the tracker's own. ROS-free
+/// core; not thread-safe.
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <string>
+#include <tuple>
+#include <unordered_map>
+#include <vector>
+
+#include "depth_track/core/cells.hpp"
+
+namespace depth_track {
+
+struct SurfaceModelConfig {
+  /// Register keyframes against the model (off: frame-to-keyframe on the frames' own cells).
+  bool enabled = true;
+  /// Voxel edge, metres: finer than a cell's footprint at working depths, so the steps between
+  /// parallel faces that pin the translation along them are not averaged away (2 cm voxels let
+  /// the rendered wall_slide run slide 54 mm where 1 cm ones keep it at 25 mm).
+  double voxel_m = 0.01;
+  /// Frames after which a voxel's running means stop weighting older ones more (the model then
+  /// follows each new frame with weight 1/max_weight). One frame is one observation of a voxel:
+  /// the mean of its cells in it.
+  int max_weight = 64;
+  int min_weight = 3;  ///< frames that saw a voxel before its plane refines a keyframe cell
+  /// A keyframe cell farther than this from the model plane along its normal keeps its own
+  /// mean and normal (the gate against a model that disagrees with the view), metres.
+  double max_offset_m = 0.02;
+  /// ... and, with a depth-noise model sigma(z) = noise_sigma_const_m + noise_sigma_quad_per_m z^2
+  /// (auto_noise sets both; 0 = not known), farther than max_offset_sigmas sigma(z): a voxel
+  /// straddling two parallel faces a few noise widths apart (a picture on a wall, a cabinet
+  /// front) holds a plane between them that fits neither, and the step between them is what
+  /// pins the translation along them.
+  double max_offset_sigmas = 3.0;
+  double noise_sigma_const_m = 0.0;
+  double noise_sigma_quad_per_m = 0.0;
+  double cos_min = 0.9;  ///< ... and one whose normal differs more than this from the plane's
+
+  std::vector<std::string> validate() const;
+};
+
+/// What SurfaceModel::refine did to one keyframe.
+struct ModelRefineStats {
+  int cells = 0;      ///< cells of the keyframe
+  int refined = 0;    ///< cells that took the model's plane
+  int no_model = 0;   ///< no confident voxel where the cell lies
+  int rejected = 0;   ///< a voxel, but its plane failed the offset or normal gate
+  double rms_offset_m = 0.0;  ///< RMS distance of the refined cells' means to the model planes
+};
+
+class SurfaceModel {
+ public:
+  /// Throws std::invalid_argument listing every problem of the config.
+  explicit SurfaceModel(const SurfaceModelConfig& config = {});
+
+  /// Adds the cells (camera frame) seen from T_W_C.
+  void integrate(const CellCloud& cells, const Eigen::Isometry3d& T_W_C);
+  /// A copy of `cells` (camera frame, seen from T_W_C) with the model's plane in place of each
+  /// cell's own where the model is confident and agrees (SurfaceModelConfig gates).
+  CellCloud refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
+                   ModelRefineStats* stats = nullptr) const;
+  void clear() { voxels_.clear(); }
+  /// Replaces the gates and weights, keeping the voxels (a runtime reconfiguration). Throws
+  /// std::invalid_argument listing every problem, or for another voxel_m (that needs a new model).
+  void setConfig(const SurfaceModelConfig& config);
+
+  std::size_t voxelCount() const { return voxels_.size(); }
+  /// Bytes per voxel of the layer: the voxel record and its key, plus the hash table's node
+  /// and bucket overhead of this standard library (an estimate, not a measurement of the heap).
+  static std::size_t bytesPerVoxel();
+  const SurfaceModelConfig& config() const { return config_; }
+
+  /// One voxel: running means of the cell means (world, metres) and unit normals.
+  struct Voxel {
+    float mean[3] = {0.f, 0.f, 0.f};
+    float normal[3] = {0.f, 0.f, 0.f};
+    std::uint16_t weight = 0;  ///< observations, saturating at max_weight
+  };
+
+ private:
+  std::uint64_t keyOf(const Eigen::Vector3f& p_W) const;
+
+  SurfaceModelConfig config_;
+  float inv_voxel_ = 50.f;
+  std::unordered_map<std::uint64_t, Voxel> voxels_;
+  /// integrate()'s per-frame scratch (key, world mean, world normal of each cell).
+  std::vector<std::tuple<std::uint64_t, Eigen::Vector3f, Eigen::Vector3f>> frame_sums_;
+};
+
+}  // namespace depth_track

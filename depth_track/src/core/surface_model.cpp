@@ -1,0 +1,164 @@
+#include "depth_track/core/surface_model.hpp"
+
+#include "depth_track/core/camera.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <tuple>
+
+namespace depth_track {
+
+namespace {
+// 21 bits per axis around the origin: +-2^20 voxels (+-21 km at 2 cm).
+constexpr std::int64_t kAxisOffset = std::int64_t{1} << 20;
+constexpr std::int64_t kAxisMask = (std::int64_t{1} << 21) - 1;
+// A refined cell's ray must meet the plane at more than this cosine (grazing rays move the mean
+// far along the ray for a small error in the plane).
+constexpr float kMinRayCos = 0.2f;
+}  // namespace
+
+std::vector<std::string> SurfaceModelConfig::validate() const {
+  std::vector<std::string> p;
+  if (!(voxel_m >= 0.002 && voxel_m <= 0.5)) p.push_back("model.voxel_m must lie in [0.002, 0.5] m");
+  if (max_weight < 1 || max_weight > 60000) p.push_back("model.max_weight must lie in [1, 60000]");
+  if (min_weight < 1) p.push_back("model.min_weight must be >= 1");
+  if (!(max_offset_m > 0.0)) p.push_back("model.max_offset_m must be > 0 m");
+  if (!(max_offset_sigmas > 0.0)) p.push_back("model.max_offset_sigmas must be > 0");
+  if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
+    p.push_back("model.noise_sigma_const_m and model.noise_sigma_quad_per_m must be >= 0");
+  if (!(cos_min >= -1.0 && cos_min <= 1.0)) p.push_back("model.cos_min must lie in [-1, 1]");
+  return p;
+}
+
+namespace {
+void checkConfig(const SurfaceModelConfig& config) {
+  const auto problems = config.validate();
+  if (!problems.empty())
+    throw std::invalid_argument("surface model config: " + joinProblems(problems));
+}
+}  // namespace
+
+SurfaceModel::SurfaceModel(const SurfaceModelConfig& config) : config_(config) {
+  checkConfig(config);
+  inv_voxel_ = static_cast<float>(1.0 / config.voxel_m);
+}
+
+void SurfaceModel::setConfig(const SurfaceModelConfig& config) {
+  checkConfig(config);
+  if (config.voxel_m != config_.voxel_m)
+    throw std::invalid_argument("surface model: model.voxel_m cannot change on a built model");
+  config_ = config;
+}
+
+std::uint64_t SurfaceModel::keyOf(const Eigen::Vector3f& p_W) const {
+  std::uint64_t key = 0;
+  for (int a = 0; a < 3; ++a) {
+    const auto i = static_cast<std::int64_t>(std::floor(p_W[a] * inv_voxel_)) + kAxisOffset;
+    key = (key << 21) | static_cast<std::uint64_t>(i & kAxisMask);
+  }
+  return key;
+}
+
+std::size_t SurfaceModel::bytesPerVoxel() {
+  // libstdc++'s node: next pointer, the key/value pair (padded), the cached hash; one bucket
+  // pointer per element at load factor 1.
+  return sizeof(void*) + sizeof(std::pair<const std::uint64_t, Voxel>) + sizeof(std::size_t) +
+         sizeof(void*);
+}
+
+void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_W_C) {
+  const Eigen::Matrix3f R = T_W_C.rotation().cast<float>();
+  const Eigen::Vector3f t = T_W_C.translation().cast<float>();
+  // The frame's cells summed per voxel first: a voxel gains one observation per frame, the
+  // mean of the cells of that frame in it, however many cells its footprint holds.
+  struct Sum {
+    Eigen::Vector3f p = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
+    int count = 0;
+  };
+  frame_sums_.clear();
+  for (const Cell& c : cells.cells) {
+    const Eigen::Vector3f p = R * c.mean_C + t;
+    const Eigen::Vector3f n = R * c.normal_C;
+    if (!p.allFinite() || !n.allFinite()) continue;
+    frame_sums_.emplace_back(keyOf(p), p, n);
+  }
+  std::sort(frame_sums_.begin(), frame_sums_.end(),
+            [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
+  voxels_.reserve(voxels_.size() + frame_sums_.size() / 4);
+  for (std::size_t i = 0; i < frame_sums_.size();) {
+    const std::uint64_t key = std::get<0>(frame_sums_[i]);
+    Sum sum;
+    for (; i < frame_sums_.size() && std::get<0>(frame_sums_[i]) == key; ++i) {
+      sum.p += std::get<1>(frame_sums_[i]);
+      sum.n += std::get<2>(frame_sums_[i]);
+      ++sum.count;
+    }
+    const Eigen::Vector3f p = sum.p / static_cast<float>(sum.count);
+    const Eigen::Vector3f n = sum.n / static_cast<float>(sum.count);
+    Voxel& v = voxels_[key];
+    if (v.weight > 0 && n[0] * v.normal[0] + n[1] * v.normal[1] + n[2] * v.normal[2] <= 0.f)
+      continue;  // the other side of a thin surface: not this voxel's plane
+    const int w = std::min<int>(v.weight + 1, config_.max_weight);
+    const float a = 1.f / static_cast<float>(w);
+    for (int k = 0; k < 3; ++k) {
+      v.mean[k] += a * (p[k] - v.mean[k]);
+      v.normal[k] += a * (n[k] - v.normal[k]);
+    }
+    v.weight = static_cast<std::uint16_t>(w);
+  }
+}
+
+CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
+                               ModelRefineStats* stats) const {
+  CellCloud out = cells;
+  ModelRefineStats s;
+  s.cells = static_cast<int>(cells.cells.size());
+  const Eigen::Matrix3f R = T_W_C.rotation().cast<float>();
+  const Eigen::Vector3f t = T_W_C.translation().cast<float>();
+  const Eigen::Matrix3f Rt = R.transpose();
+  const float cos_min = static_cast<float>(config_.cos_min);
+  const float max_offset = static_cast<float>(config_.max_offset_m);
+  const float k_sigma = static_cast<float>(config_.max_offset_sigmas);
+  const float sigma_c = static_cast<float>(config_.noise_sigma_const_m);
+  const float sigma_q = static_cast<float>(config_.noise_sigma_quad_per_m);
+  const bool noise_known = sigma_c > 0.f || sigma_q > 0.f;
+  double sum_sq = 0.0;
+  for (Cell& c : out.cells) {
+    const Eigen::Vector3f p = R * c.mean_C + t;
+    const auto it = voxels_.find(keyOf(p));
+    if (it == voxels_.end() || it->second.weight < config_.min_weight) {
+      ++s.no_model;
+      continue;
+    }
+    const Voxel& v = it->second;
+    Eigen::Vector3f n_W(v.normal[0], v.normal[1], v.normal[2]);
+    const float len = n_W.norm();
+    // Normals that disagree among themselves average to a short vector: no plane there.
+    if (!(len > 0.5f)) {
+      ++s.rejected;
+      continue;
+    }
+    const Eigen::Vector3f n = Rt * (n_W / len);
+    const Eigen::Vector3f m = Rt * (Eigen::Vector3f(v.mean[0], v.mean[1], v.mean[2]) - t);
+    const float offset = n.dot(c.mean_C - m);
+    const float denom = n.dot(c.mean_C);
+    const float z = c.mean_C.z();
+    const float gate =
+        noise_known ? std::min(max_offset, k_sigma * (sigma_c + sigma_q * z * z)) : max_offset;
+    if (n.dot(c.normal_C) < cos_min || std::abs(offset) > gate ||
+        std::abs(denom) < kMinRayCos * c.mean_C.norm()) {
+      ++s.rejected;
+      continue;
+    }
+    c.mean_C *= n.dot(m) / denom;
+    c.normal_C = n;
+    ++s.refined;
+    sum_sq += static_cast<double>(offset) * offset;
+  }
+  if (s.refined > 0) s.rms_offset_m = std::sqrt(sum_sq / s.refined);
+  if (stats) *stats = s;
+  return out;
+}
+
+}  // namespace depth_track
