@@ -123,31 +123,50 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
   const float sigma_c = static_cast<float>(config_.noise_sigma_const_m);
   const float sigma_q = static_cast<float>(config_.noise_sigma_quad_per_m);
   const bool noise_known = sigma_c > 0.f || sigma_q > 0.f;
+  const float voxel = static_cast<float>(config_.voxel_m);
   double sum_sq = 0.0;
   for (Cell& c : out.cells) {
     const Eigen::Vector3f p = R * c.mean_C + t;
-    const auto it = voxels_.find(keyOf(p));
-    if (it == voxels_.end() || it->second.weight < config_.min_weight) {
-      ++s.no_model;
-      continue;
-    }
-    const Voxel& v = it->second;
-    Eigen::Vector3f n_W(v.normal[0], v.normal[1], v.normal[2]);
-    const float len = n_W.norm();
-    // Normals that disagree among themselves average to a short vector: no plane there.
-    if (!(len > 0.5f)) {
-      ++s.rejected;
-      continue;
-    }
-    const Eigen::Vector3f n = Rt * (n_W / len);
-    const Eigen::Vector3f m = Rt * (Eigen::Vector3f(v.mean[0], v.mean[1], v.mean[2]) - t);
-    const float offset = n.dot(c.mean_C - m);
-    const float denom = n.dot(c.mean_C);
+    const Eigen::Vector3f n_cell = R * c.normal_C;
     const float z = c.mean_C.z();
     const float gate =
         noise_known ? std::min(max_offset, k_sigma * (sigma_c + sigma_q * z * z)) : max_offset;
-    if (n.dot(c.normal_C) < cos_min || std::abs(offset) > gate ||
-        std::abs(denom) < kMinRayCos * c.mean_C.norm()) {
+    // The voxel the cell lies in and its neighbours along the cell's normal: a surface near a
+    // voxel face splits its observations between the two layers by the sign of their noise,
+    // and one layer alone would keep the cell on its own side. Voxels whose plane agrees with
+    // the cell are averaged, weighted by their observations.
+    const std::uint64_t keys[3] = {keyOf(p), keyOf(p + voxel * n_cell), keyOf(p - voxel * n_cell)};
+    Eigen::Vector3f m_sum = Eigen::Vector3f::Zero(), n_sum = Eigen::Vector3f::Zero();
+    float w_sum = 0.f;
+    bool seen = false;
+    for (int k = 0; k < 3; ++k) {
+      if ((k == 1 && keys[1] == keys[0]) || (k == 2 && (keys[2] == keys[0] || keys[2] == keys[1])))
+        continue;
+      const auto it = voxels_.find(keys[k]);
+      if (it == voxels_.end() || it->second.weight < config_.min_weight) continue;
+      seen = true;
+      const Voxel& v = it->second;
+      const Eigen::Vector3f n_v(v.normal[0], v.normal[1], v.normal[2]);
+      const float len = n_v.norm();
+      // Normals that disagree among themselves average to a short vector: no plane there.
+      if (!(len > 0.5f)) continue;
+      const Eigen::Vector3f n_unit = n_v / len;
+      const Eigen::Vector3f m_v(v.mean[0], v.mean[1], v.mean[2]);
+      if (n_unit.dot(n_cell) < cos_min || std::abs(n_unit.dot(p - m_v)) > gate) continue;
+      const float w = static_cast<float>(v.weight);
+      m_sum += w * m_v;
+      n_sum += w * n_unit;
+      w_sum += w;
+    }
+    if (!(w_sum > 0.f)) {
+      ++(seen ? s.rejected : s.no_model);
+      continue;
+    }
+    const Eigen::Vector3f n = Rt * n_sum.normalized();
+    const Eigen::Vector3f m = Rt * (m_sum / w_sum - t);
+    const float offset = n.dot(c.mean_C - m);
+    const float denom = n.dot(c.mean_C);
+    if (std::abs(offset) > gate || std::abs(denom) < kMinRayCos * c.mean_C.norm()) {
       ++s.rejected;
       continue;
     }

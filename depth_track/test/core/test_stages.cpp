@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <optional>
 #include <random>
 #include <thread>
 
@@ -60,12 +61,26 @@ TEST(Stages, ComposeToTheTrackersResults) {
 
     auto pool = std::make_shared<const WorkerPool>(2);
     PrefilterStage prefilter(run.intrinsics, cfg.prefilter, pool);
-    CellReducer reducer(run.intrinsics, cfg.reducerConfig(), pool);
-    CellOdometry odometry(run.intrinsics, cfg.odometryConfig(), run.T_W_C.front());
+    // Reducer and odometry take the first frame's noise calibration as the graph's do (from
+    // cells/noise): the Tracker measures it on that frame before reducing it.
+    std::optional<CellReducer> reducer_opt;
+    std::optional<CellOdometry> odometry_opt;
     int keyframes = 0;
     for (std::size_t i = 0; i < 24; ++i) {
       const DepthImage d = run.renderFrame(i, noise, 1);
       const FrameStatus a = tracker.track(d, run.stamps_s[i]);
+      if (!odometry_opt) {
+        ASSERT_TRUE(tracker.noiseCalibration().has_value());
+        ASSERT_TRUE(tracker.noiseCalibration()->measured);
+        PcaConfig pca = cfg.reducerConfig();
+        CellOdometryConfig oc = cfg.odometryConfig();
+        tracker.noiseCalibration()->applyTo(&pca);
+        tracker.noiseCalibration()->applyTo(&oc);
+        reducer_opt.emplace(run.intrinsics, pca, pool);
+        odometry_opt.emplace(run.intrinsics, oc, run.T_W_C.front());
+      }
+      CellReducer& reducer = *reducer_opt;
+      CellOdometry& odometry = *odometry_opt;
       const auto cells = reducer.reduce(prefilter.apply(d), run.stamps_s[i], "camera_optical");
       EXPECT_EQ(cells->stamp_s, run.stamps_s[i]);
       EXPECT_EQ(cells->frame_id, "camera_optical");
@@ -80,9 +95,9 @@ TEST(Stages, ComposeToTheTrackersResults) {
     EXPECT_GT(keyframes, 1);
     EXPECT_LT(keyframes, 24);
     EXPECT_EQ(tracker.timing().count(), 24u);
-    EXPECT_EQ(reducer.timing().count(), 24u);
+    EXPECT_EQ(reducer_opt->timing().count(), 24u);
     EXPECT_EQ(prefilter.timing().count(), 24u);
-    EXPECT_EQ(odometry.timing().count(), 23u);  // the first frame has nothing to register to
+    EXPECT_EQ(odometry_opt->timing().count(), 23u);  // the first frame has nothing to register to
   }
 }
 

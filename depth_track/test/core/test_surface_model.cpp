@@ -34,6 +34,9 @@ CellCloud noisyWall(double depth, double sigma, double sigma_n, unsigned seed) {
                                    static_cast<float>(sigma_n) * g(rng), -1.f)
                        .normalized();
       c.cov.setZero();
+      c.eigenvalues.setZero();
+      c.eigenvectors.setZero();
+      c.cov_inv_sqrt.setZero();
       cloud.grid_index[gy * cloud.grid_w + gx] = static_cast<int>(cloud.cells.size());
       cloud.cells.push_back(c);
     }
