@@ -283,6 +283,12 @@ int main(int argc, char** argv) {
         "pruned_degenerate=%d\n",
         config.pca.cell_size, cells.stats.total, cells.stats.retained, cells.stats.pruned_invalid,
         cells.stats.pruned_edge, cells.stats.pruned_degenerate);
+    if (tracker.config().model.enabled) {
+      const SurfaceModel& model = tracker.odometry().model();
+      std::printf("registration model: voxel=%.3f m voxels=%zu MB=%.1f (%.1f B per voxel)\n",
+                  model.config().voxel_m, model.voxelCount(), model.memoryBytes() / 1e6,
+                  model.bytesPerVoxel());
+    }
     if (mapper) {
       if (!options.map_path.empty()) mapper->save(options.map_path);
       const VoxelMap& vm = mapper->map();

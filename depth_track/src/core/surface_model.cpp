@@ -60,11 +60,60 @@ std::uint64_t SurfaceModel::keyOf(const Eigen::Vector3f& p_W) const {
   return key;
 }
 
-std::size_t SurfaceModel::bytesPerVoxel() {
-  // libstdc++'s node: next pointer, the key/value pair (padded), the cached hash; one bucket
-  // pointer per element at load factor 1.
-  return sizeof(void*) + sizeof(std::pair<const std::uint64_t, Voxel>) + sizeof(std::size_t) +
-         sizeof(void*);
+void SurfaceModel::clear() {
+  keys_.clear();
+  slots_.clear();
+  size_ = 0;
+  bits_ = 0;
+}
+
+std::size_t SurfaceModel::memoryBytes() const {
+  return keys_.capacity() * sizeof(std::uint64_t) + slots_.capacity() * sizeof(Voxel);
+}
+
+double SurfaceModel::bytesPerVoxel() const {
+  return size_ == 0 ? 0.0 : static_cast<double>(memoryBytes()) / static_cast<double>(size_);
+}
+
+std::size_t SurfaceModel::slotOf(std::uint64_t key) const {
+  // Fibonacci hashing: the top bits of the key times 2^64 / phi.
+  return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - bits_));
+}
+
+const SurfaceModel::Voxel* SurfaceModel::find(std::uint64_t key) const {
+  if (size_ == 0) return nullptr;
+  const std::size_t mask = keys_.size() - 1;
+  for (std::size_t i = slotOf(key);; i = (i + 1) & mask) {
+    if (keys_[i] == key) return &slots_[i];
+    if (keys_[i] == kEmpty) return nullptr;
+  }
+}
+
+void SurfaceModel::grow() {
+  std::vector<std::uint64_t> keys = std::move(keys_);
+  std::vector<Voxel> slots = std::move(slots_);
+  bits_ = bits_ == 0 ? 16 : bits_ + 1;
+  keys_.assign(std::size_t{1} << bits_, kEmpty);
+  slots_.assign(std::size_t{1} << bits_, Voxel{});
+  const std::size_t mask = keys_.size() - 1;
+  for (std::size_t j = 0; j < keys.size(); ++j) {
+    if (keys[j] == kEmpty) continue;
+    std::size_t i = slotOf(keys[j]);
+    while (keys_[i] != kEmpty) i = (i + 1) & mask;
+    keys_[i] = keys[j];
+    slots_[i] = slots[j];
+  }
+}
+
+SurfaceModel::Voxel& SurfaceModel::findOrInsert(std::uint64_t key) {
+  if (10 * (size_ + 1) > 7 * keys_.size()) grow();  // load factor at most 0.7
+  const std::size_t mask = keys_.size() - 1;
+  std::size_t i = slotOf(key);
+  for (; keys_[i] != kEmpty; i = (i + 1) & mask)
+    if (keys_[i] == key) return slots_[i];
+  keys_[i] = key;
+  ++size_;
+  return slots_[i];
 }
 
 void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_W_C) {
@@ -85,7 +134,6 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
   }
   std::sort(frame_sums_.begin(), frame_sums_.end(),
             [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
-  voxels_.reserve(voxels_.size() + frame_sums_.size() / 4);
   for (std::size_t i = 0; i < frame_sums_.size();) {
     const std::uint64_t key = std::get<0>(frame_sums_[i]);
     Sum sum;
@@ -96,7 +144,7 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
     }
     const Eigen::Vector3f p = sum.p / static_cast<float>(sum.count);
     const Eigen::Vector3f n = sum.n / static_cast<float>(sum.count);
-    Voxel& v = voxels_[key];
+    Voxel& v = findOrInsert(key);
     if (v.weight > 0 && n[0] * v.normal[0] + n[1] * v.normal[1] + n[2] * v.normal[2] <= 0.f)
       continue;  // the other side of a thin surface: not this voxel's plane
     const int w = std::min<int>(v.weight + 1, config_.max_weight);
@@ -142,10 +190,10 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
     for (int k = 0; k < 3; ++k) {
       if ((k == 1 && keys[1] == keys[0]) || (k == 2 && (keys[2] == keys[0] || keys[2] == keys[1])))
         continue;
-      const auto it = voxels_.find(keys[k]);
-      if (it == voxels_.end() || it->second.weight < config_.min_weight) continue;
+      const Voxel* found = find(keys[k]);
+      if (!found || found->weight < config_.min_weight) continue;
       seen = true;
-      const Voxel& v = it->second;
+      const Voxel& v = *found;
       const Eigen::Vector3f n_v(v.normal[0], v.normal[1], v.normal[2]);
       const float len = n_v.norm();
       // Normals that disagree among themselves average to a short vector: no plane there.

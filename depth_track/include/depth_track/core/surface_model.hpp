@@ -12,7 +12,6 @@
 #include <cstdint>
 #include <string>
 #include <tuple>
-#include <unordered_map>
 #include <vector>
 
 #include "depth_track/core/cells.hpp"
@@ -69,15 +68,17 @@ class SurfaceModel {
   /// cell's own where the model is confident and agrees (SurfaceModelConfig gates).
   CellCloud refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
                    ModelRefineStats* stats = nullptr) const;
-  void clear() { voxels_.clear(); }
+  void clear();
   /// Replaces the gates and weights, keeping the voxels (a runtime reconfiguration). Throws
   /// std::invalid_argument listing every problem, or for another voxel_m (that needs a new model).
   void setConfig(const SurfaceModelConfig& config);
 
-  std::size_t voxelCount() const { return voxels_.size(); }
-  /// Bytes per voxel of the layer: the voxel record and its key, plus the hash table's node
-  /// and bucket overhead of this standard library (an estimate, not a measurement of the heap).
-  static std::size_t bytesPerVoxel();
+  std::size_t voxelCount() const { return size_; }
+  /// Bytes the layer holds: its open-addressing table (key and record per slot; from 2^16
+  /// slots, doubling when 70 % full, so 1.4 to 2.9 slots per voxel once past the first table).
+  std::size_t memoryBytes() const;
+  /// memoryBytes() per voxel (0 when empty).
+  double bytesPerVoxel() const;
   const SurfaceModelConfig& config() const { return config_; }
 
   /// One voxel: running means of the cell means (world, metres) and unit normals.
@@ -89,10 +90,21 @@ class SurfaceModel {
 
  private:
   std::uint64_t keyOf(const Eigen::Vector3f& p_W) const;
+  /// The voxel of `key`, or null.
+  const Voxel* find(std::uint64_t key) const;
+  /// The voxel of `key`, inserted empty (weight 0) when missing.
+  Voxel& findOrInsert(std::uint64_t key);
+  std::size_t slotOf(std::uint64_t key) const;
+  void grow();
 
   SurfaceModelConfig config_;
   float inv_voxel_ = 50.f;
-  std::unordered_map<std::uint64_t, Voxel> voxels_;
+  // Open addressing with linear probing: keys_[i] == kEmpty marks a free slot.
+  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
+  std::vector<std::uint64_t> keys_;
+  std::vector<Voxel> slots_;
+  std::size_t size_ = 0;
+  int bits_ = 0;
   /// integrate()'s per-frame scratch (key, world mean, world normal of each cell).
   std::vector<std::tuple<std::uint64_t, Eigen::Vector3f, Eigen::Vector3f>> frame_sums_;
 };
