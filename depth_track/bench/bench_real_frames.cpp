@@ -75,7 +75,9 @@ const Sequence& sequence() {
 // One iteration tracks every loaded frame after the first with a tracker made (and noise-adapted
 // on frame 0) outside the clock. per_frame is the mean CPU time per frame (one thread);
 // frame_ms_median (the target's figure) and the stage counters are medians, over the last
-// iteration's frames, of FrameStatus's wall-clock times.
+// iteration's frames, of FrameStatus's wall-clock times. The argument: 0 = the defaults, 1 = the
+// registration model on (model: true; its fusion and keyframe refinement are in the frame's
+// total, neither in reduce nor register).
 void BM_RealTrackerFrames(benchmark::State& state) {
   const Sequence& s = sequence();
   if (!s.error.empty()) {
@@ -86,7 +88,9 @@ void BM_RealTrackerFrames(benchmark::State& state) {
   int lost = 0;
   for (auto _ : state) {
     state.PauseTiming();
-    Tracker tracker(s.intrinsics, TrackerConfig());
+    TrackerConfig config;
+    config.model.enabled = state.range(0) != 0;
+    Tracker tracker(s.intrinsics, config);
     tracker.track(s.frames[0], s.stamps[0]);
     total_ms.clear();
     reduce_ms.clear();
@@ -109,9 +113,10 @@ void BM_RealTrackerFrames(benchmark::State& state) {
   state.counters["register_ms_median"] = register_ms.median();
   state.counters["frames"] = frames;
   state.counters["lost"] = lost;
-  state.SetLabel(std::filesystem::path(s.folder).filename().string());
+  state.SetLabel(std::filesystem::path(s.folder).filename().string() +
+                 (state.range(0) ? " model" : ""));
 }
-BENCHMARK(BM_RealTrackerFrames)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_RealTrackerFrames)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // The reduction alone on every loaded frame, with the settings the noise adaptation chose.
 void BM_RealReduce(benchmark::State& state) {

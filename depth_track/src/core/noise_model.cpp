@@ -171,6 +171,11 @@ void NoiseCalibration::applyTo(CellOdometryConfig* odometry) const {
   odometry->registration.match.cos_min = adaptation.cos_min;
   odometry->registration.huber_delta_m = adaptation.huber_delta_m;
   odometry->max_error_rms_m = adaptation.max_error_rms_m;
+  applyNoiseModelTo(odometry);
+}
+
+void NoiseCalibration::applyNoiseModelTo(CellOdometryConfig* odometry) const {
+  if (!measured) return;
   odometry->registration.noise_sigma_const_m = noise.const_m;
   odometry->registration.noise_sigma_quad_per_m = noise.quad_per_m;
   odometry->registration.noise_ref_depth_m = z_ref_m;
@@ -189,6 +194,8 @@ void NoiseCalibration::applyToUnchanged(const CellOdometryConfig& before,
     after->registration.huber_delta_m = calibrated.registration.huber_delta_m;
   if (after->max_error_rms_m == before.max_error_rms_m)
     after->max_error_rms_m = calibrated.max_error_rms_m;
+  // The noise model itself is a measurement, not a parameter: it stays through any request.
+  applyNoiseModelTo(after);
 }
 
 NoiseCalibration calibrateNoise(const DepthImage& depth, const PinholeIntrinsics& intrinsics,

@@ -276,10 +276,14 @@ MatchResult associate(const CellCloud& reference, const AssociationGrid& grid,
   return result;
 }
 
-double huberWeight(double residual, const RegistrationConfig& config) {
-  if (!config.robust) return 1.0;
+double huberWeight(double residual, double delta_m, bool robust) {
+  if (!robust) return 1.0;
   const double a = std::abs(residual);
-  return a <= config.huber_delta_m ? 1.0 : config.huber_delta_m / a;
+  return a <= delta_m ? 1.0 : delta_m / a;
+}
+
+double huberWeight(double residual, const RegistrationConfig& config) {
+  return huberWeight(residual, config.huber_delta_m, config.robust);
 }
 
 // The depth-noise weighting of RegistrationConfig: for a reference depth z, the pair's weight
@@ -288,7 +292,9 @@ struct NoiseWeighting {
   bool on = false;
   double c = 0.0, q = 0.0, sigma_ref = 0.0, z_ref = 0.0;
   explicit NoiseWeighting(const RegistrationConfig& config)
-      : c(config.noise_sigma_const_m), q(config.noise_sigma_quad_per_m), z_ref(config.noise_ref_depth_m) {
+      : c(config.noise_sigma_const_m),
+        q(config.noise_sigma_quad_per_m),
+        z_ref(config.noise_ref_depth_m) {
     sigma_ref = c + q * z_ref * z_ref;
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
@@ -296,10 +302,7 @@ struct NoiseWeighting {
   double weight(double e, double z, const RegistrationConfig& config) const {
     if (!on || !(z > z_ref)) return huberWeight(e, config);
     const double ratio = (c + q * z * z) / sigma_ref;  // > 1
-    const double a = std::abs(e);
-    const double delta = config.huber_delta_m * ratio;
-    const double huber = !config.robust || a <= delta ? 1.0 : delta / a;
-    return huber / (ratio * ratio);
+    return huberWeight(e, config.huber_delta_m * ratio, config.robust) / (ratio * ratio);
   }
 };
 

@@ -154,6 +154,40 @@ INSTANTIATE_TEST_SUITE_P(Methods, RecoverMotion,
                          ::testing::Values(RegistrationMethod::kPointToPlane,
                                            RegistrationMethod::kCellSearch));
 
+// Depth-noise weighting: off (the default) or with sigma(z) flat it changes nothing; with sigma
+// growing in depth the pairs beyond z_ref weigh less, so the normal equations hold less
+// information, and the motion is still recovered.
+TEST(Registration, NoiseWeightingWeighsDeepPairsDown) {
+  const auto K = l515();
+  const Eigen::Isometry3d truth = motion(2.0, -1.0, 1.0, 0.02, 0.01, -0.01);
+  const CellCloud ref =
+      reduceToCells(renderPlanes(cornerRoom(), K, Eigen::Isometry3d::Identity()), K, PcaConfig{});
+  const CellCloud cur = reduceToCells(renderPlanes(cornerRoom(), K, truth), K, PcaConfig{});
+  RegistrationConfig base = config(RegistrationMethod::kPointToPlane);
+  base.match.search_radius_cells = 10;
+  base.noise_sigma_const_m = 0.001;
+  base.noise_ref_depth_m = 1.0;
+  const RegistrationResult off = registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), base);
+  RegistrationConfig flat = base;
+  flat.noise_weighting = true;  // sigma(z) = 1 mm everywhere: every ratio is 1
+  const RegistrationResult r_flat =
+      registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), flat);
+  EXPECT_EQ(r_flat.T_ref_cur.matrix(), off.T_ref_cur.matrix());
+  EXPECT_EQ(r_flat.normal_matrix, off.normal_matrix);
+  RegistrationConfig deep = flat;
+  deep.noise_sigma_quad_per_m = 0.002;  // sigma(3 m) is 6.3x sigma(1 m)
+  const RegistrationResult r_deep =
+      registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), deep);
+  ASSERT_TRUE(r_deep.failure.empty()) << r_deep.failure;
+  EXPECT_LT(r_deep.normal_matrix.trace(), 0.8 * off.normal_matrix.trace());
+  const Eigen::Isometry3d err = truth.inverse() * r_deep.T_ref_cur;
+  EXPECT_LT(err.translation().norm(), 0.001);
+  EXPECT_LT(rotationAngle(err) / kDegToRad, 0.05);
+  RegistrationConfig bad = base;
+  bad.noise_ref_depth_m = -1.0;
+  EXPECT_EQ(bad.validate().size(), 1u);
+}
+
 TEST(Registration, ConfigProblemsAreAllReported) {
   RegistrationConfig c;
   c.match.dist_min_m = -1;

@@ -108,11 +108,16 @@ struct NoiseCalibration {
   /// Sets the reduction's noise-dependent parameters (edge test's noise term, normal pooling,
   /// min_valid_fraction); nothing when !measured.
   void applyTo(PcaConfig* pca) const;
-  /// Sets the odometry's (cos_min, huber_delta, max_error); nothing when !measured.
+  /// Sets the odometry's (cos_min, huber_delta, max_error) and its noise model
+  /// (applyNoiseModelTo); nothing when !measured.
   void applyTo(CellOdometryConfig* odometry) const;
+  /// Sets only the measured sigma(z) where the odometry reads it: the registration's depth-noise
+  /// weighting (with z_ref) and the registration model's offset gate; nothing when !measured.
+  void applyNoiseModelTo(CellOdometryConfig* odometry) const;
   /// For a runtime reconfiguration from `before` to `*after` (both as configured, without the
   /// calibration): the calibrated value of each of those three that the reconfiguration left as
-  /// it was, so a change of one parameter does not undo what auto_noise chose for the others.
+  /// it was, so a change of one parameter does not undo what auto_noise chose for the others;
+  /// the noise model always (applyNoiseModelTo).
   void applyToUnchanged(const CellOdometryConfig& before, CellOdometryConfig* after) const;
 };
 
