@@ -159,7 +159,10 @@ TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
 // The rendered wall_slide run with L515 noise: every frame of the three seconds square on to the
 // wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over that stretch stays
 // within 5 mm per second of it, and the frames at rest looking at the furnished side (0-0.6 s)
-// and after the turn back (7.2-8 s) are not flagged.
+// and after the turn back (7.2-8 s) are not flagged. The 5 mm/s holds on this noise seed (4.25
+// mm/s), not in general: over seeds 1-10 (2026-12-03) the drift is 4.25 / 18.98 / 9.65 / 3.59 /
+// 4.31 / 2.74 / 7.33 / 21.05 / 20.56 / 16.25 mm/s, within the target on four
+// (docs/tracking.md, "Registration model"). The flagging holds on every seed measured.
 TEST(Degeneracy, WallSlideRunFlaggedAndHeldAtTheMotionPrior) {
   const sim::RenderedRun run = sim::makeRun("wall_slide");
   const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
