@@ -11,6 +11,15 @@
 namespace depth_track {
 
 namespace {
+// The smallest ratio of a direction's information to its noise floor (0 without floors).
+double weakestInformation(const DegeneracyAnalysis& a) {
+  double weakest = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 6; ++i) {
+    const double f = a.noise_floor(i);
+    if (f > 0.0) weakest = std::min(weakest, a.eigenvalues(i) / f);
+  }
+  return std::isfinite(weakest) ? weakest : 0.0;
+}
 // The prior is never trusted beyond this per frame (metres): 2 mm in one frame at 30 Hz is an
 // acceleration of ~2 m/s^2, which a hand or a rig starting to move can reach unannounced; a
 // camera at rest must not earn a prior that its first move then breaks.
@@ -245,15 +254,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   st.error_rms_m = reg.error_rms_m;
   st.normal_matrix = reg.normal_matrix;
   st.degenerate_directions = reg.degeneracy.degenerate;
-  {
-    // The direction with the least information relative to its noise floor.
-    double weakest = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < 6; ++i) {
-      const double f = reg.degeneracy.noise_floor(i);
-      if (f > 0.0) weakest = std::min(weakest, reg.degeneracy.eigenvalues(i) / f);
-    }
-    st.weakest_information = std::isfinite(weakest) ? weakest : 0.0;
-  }
+  st.weakest_information = weakestInformation(reg.degeneracy);
   if (reg.matches > 0)
     st.covariance = registrationCovariance(reg.degeneracy, reg.error_rms_m * reg.error_rms_m,
                                            reg_config.degeneracy);
