@@ -133,6 +133,7 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   history_.clear();
   prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
   model_.clear();
+  model_frames_ = 0;
 }
 
 void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
@@ -328,7 +329,11 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
               overlap < config_.keyframe_min_overlap;
   }
   last_cells_ = cells;
-  if (st.tracked && config_.model.enabled) model_.integrate(*cells, T_W_C_);
+  if (st.tracked && config_.model.enabled) {
+    model_.integrate(*cells, T_W_C_);
+    if (config_.model.keep_radius_m > 0.0 && ++model_frames_ % config_.model.prune_every == 0)
+      model_.prune(T_W_C_.translation(), config_.model.keep_radius_m);
+  }
   if (st.tracked && refresh) {
     setModelReference(cells, &st.model);
     st.new_keyframe = true;

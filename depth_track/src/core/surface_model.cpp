@@ -16,6 +16,8 @@ constexpr std::int64_t kAxisMask = (std::int64_t{1} << 21) - 1;
 // A refined cell's ray must meet the plane at more than this cosine (grazing rays move the mean
 // far along the ray for a small error in the plane).
 constexpr float kMinRayCos = 0.2f;
+// The first table: 2^16 slots (2.4 MB).
+constexpr int kFirstBits = 16;
 }  // namespace
 
 std::vector<std::string> SurfaceModelConfig::validate() const {
@@ -28,6 +30,8 @@ std::vector<std::string> SurfaceModelConfig::validate() const {
   if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
     p.push_back("model.noise_sigma_const_m and model.noise_sigma_quad_per_m must be >= 0");
   if (!(cos_min >= -1.0 && cos_min <= 1.0)) p.push_back("model.cos_min must lie in [-1, 1]");
+  if (!(keep_radius_m >= 0.0)) p.push_back("model.keep_radius_m must be >= 0 m (0 = keep all)");
+  if (prune_every < 1) p.push_back("model.prune_every must be >= 1 frame");
   return p;
 }
 
@@ -89,20 +93,47 @@ const SurfaceModel::Voxel* SurfaceModel::find(std::uint64_t key) const {
   }
 }
 
-void SurfaceModel::grow() {
+template <class Keep>
+void SurfaceModel::rehash(int bits, Keep keep) {
   std::vector<std::uint64_t> keys = std::move(keys_);
   std::vector<Voxel> slots = std::move(slots_);
-  bits_ = bits_ == 0 ? 16 : bits_ + 1;
+  bits_ = bits;
   keys_.assign(std::size_t{1} << bits_, kEmpty);
   slots_.assign(std::size_t{1} << bits_, Voxel{});
+  size_ = 0;
   const std::size_t mask = keys_.size() - 1;
   for (std::size_t j = 0; j < keys.size(); ++j) {
-    if (keys[j] == kEmpty) continue;
+    if (keys[j] == kEmpty || !keep(slots[j])) continue;
     std::size_t i = slotOf(keys[j]);
     while (keys_[i] != kEmpty) i = (i + 1) & mask;
     keys_[i] = keys[j];
     slots_[i] = slots[j];
+    ++size_;
   }
+}
+
+void SurfaceModel::grow() {
+  rehash(bits_ == 0 ? kFirstBits : bits_ + 1, [](const Voxel&) { return true; });
+}
+
+std::size_t SurfaceModel::prune(const Eigen::Vector3d& centre_W, double radius_m) {
+  if (size_ == 0) return 0;
+  const Eigen::Vector3f c = centre_W.cast<float>();
+  const float r2 = static_cast<float>(radius_m * radius_m);
+  const auto inside = [&](const Voxel& v) {
+    return (Eigen::Vector3f(v.mean[0], v.mean[1], v.mean[2]) - c).squaredNorm() <= r2;
+  };
+  std::size_t kept = 0;
+  for (std::size_t j = 0; j < keys_.size(); ++j) kept += keys_[j] != kEmpty && inside(slots_[j]);
+  const std::size_t dropped = size_ - kept;
+  if (dropped == 0) return 0;
+  // The smallest table (from 2^kFirstBits) that holds what is kept below 70 % load.
+  int bits = kFirstBits;
+  while (10 * kept > 7 * (std::size_t{1} << bits)) ++bits;
+  rehash(bits, inside);
+  keys_.shrink_to_fit();
+  slots_.shrink_to_fit();
+  return dropped;
 }
 
 SurfaceModel::Voxel& SurfaceModel::findOrInsert(std::uint64_t key) {

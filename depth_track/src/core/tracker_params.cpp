@@ -164,6 +164,11 @@ std::vector<ParamSpec> makeParams() {
   p.push_back(num("model_max_offset_sigmas", "",
                   "... or farther than this many depth-noise sigmas (auto_noise's model)",
                   [](TrackerConfig& c) -> double& { return c.model.max_offset_sigmas; }));
+  p.push_back(num("model_keep_radius", "m",
+                  "voxels farther than this from the camera are dropped (0 = keep all)",
+                  [](TrackerConfig& c) -> double& { return c.model.keep_radius_m; }));
+  p.push_back(num("model_prune_every", "frames", "... checked every this many fused frames",
+                  [](TrackerConfig& c) -> int& { return c.model.prune_every; }));
   p.push_back(num("model_cos_min", "", "... and one whose normal differs more from the plane's",
                   [](TrackerConfig& c) -> double& { return c.model.cos_min; }));
   return p;

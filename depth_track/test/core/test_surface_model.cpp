@@ -185,6 +185,34 @@ TEST(SurfaceModel, TableGrowsAndKeepsEveryVoxel) {
   EXPECT_EQ(stats.no_model, stats.cells);
 }
 
+TEST(SurfaceModel, PruneKeepsTheSurroundingsAndShrinksTheTable) {
+  SurfaceModel model;
+  const Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  // Walls at 1 m and, 40 cm apart from 3 m on, 150 further ones out to about 63 m.
+  for (unsigned f = 0; f < 3; ++f) model.integrate(noisyWall(1.005, 0.0, 0.0, f), T);
+  const std::size_t near_voxels = model.voxelCount();
+  for (int layer = 0; layer < 150; ++layer)
+    for (unsigned f = 0; f < 3; ++f)
+      model.integrate(noisyWall(3.005 + 0.4 * layer, 0.0, 0.0, f), T);
+  const std::size_t all = model.voxelCount();
+  const std::size_t bytes = model.memoryBytes();
+  ASSERT_GT(all, 100000u);
+  // Around the camera with a 2 m radius only the near wall (its corners lie within 1.12 m).
+  EXPECT_EQ(model.prune(Eigen::Vector3d::Zero(), 2.0), all - near_voxels);
+  EXPECT_EQ(model.voxelCount(), near_voxels);
+  EXPECT_LE(model.memoryBytes(), bytes / 4);  // back to the first table
+  ModelRefineStats stats;
+  model.refine(noisyWall(1.006, 0.0, 0.0, 9), T, &stats);
+  EXPECT_EQ(stats.refined, stats.cells);
+  model.refine(noisyWall(3.006, 0.0, 0.0, 9), T, &stats);
+  EXPECT_EQ(stats.no_model, stats.cells);
+  EXPECT_EQ(model.prune(Eigen::Vector3d::Zero(), 2.0), 0u);
+  // Still a working table: new voxels go in and are found.
+  for (unsigned f = 0; f < 3; ++f) model.integrate(noisyWall(3.005, 0.0, 0.0, f), T);
+  model.refine(noisyWall(3.006, 0.0, 0.0, 9), T, &stats);
+  EXPECT_EQ(stats.refined, stats.cells);
+}
+
 TEST(SurfaceModel, ConfigProblemsAreNamed) {
   SurfaceModelConfig c;
   c.voxel_m = 0.0;

@@ -195,6 +195,7 @@ class CellOdometry {
   double prior_var_m2_ = 1e-4;
   RunningStats timing_;
   SurfaceModel model_;
+  long model_frames_ = 0;  ///< frames fused into the model since the start or reset (pruning)
 };
 
 }  // namespace depth_track

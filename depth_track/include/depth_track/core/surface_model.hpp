@@ -44,6 +44,11 @@ struct SurfaceModelConfig {
   double noise_sigma_const_m = 0.0;
   double noise_sigma_quad_per_m = 0.0;
   double cos_min = 0.9;  ///< ... and one whose normal differs more than this from the plane's
+  /// The odometry drops the voxels farther than this from the camera every prune_every frames
+  /// (0 = keeps everything): the layer then holds the surroundings, not the whole run, and its
+  /// memory stays bounded on a long run. Metres.
+  double keep_radius_m = 8.0;
+  int prune_every = 100;  ///< frames
 
   std::vector<std::string> validate() const;
 };
@@ -69,6 +74,9 @@ class SurfaceModel {
   CellCloud refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
                    ModelRefineStats* stats = nullptr) const;
   void clear();
+  /// Drops every voxel whose mean lies farther than radius_m from centre_W (world, metres) and
+  /// shrinks the table to what is left. Returns the number dropped.
+  std::size_t prune(const Eigen::Vector3d& centre_W, double radius_m);
   /// Replaces the gates and weights, keeping the voxels (a runtime reconfiguration). Throws
   /// std::invalid_argument listing every problem, or for another voxel_m (that needs a new model).
   void setConfig(const SurfaceModelConfig& config);
@@ -96,6 +104,10 @@ class SurfaceModel {
   Voxel& findOrInsert(std::uint64_t key);
   std::size_t slotOf(std::uint64_t key) const;
   void grow();
+  /// Re-inserts the occupied slots of (keys, slots) into a fresh table of 2^bits slots, keeping
+  /// those `keep` accepts.
+  template <class Keep>
+  void rehash(int bits, Keep keep);
 
   SurfaceModelConfig config_;
   float inv_voxel_ = 50.f;
