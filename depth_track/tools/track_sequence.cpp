@@ -182,6 +182,7 @@ int main(int argc, char** argv) {
     Trajectory est, gt;
     RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
+    long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
     std::map<std::string, int> failures;
     for (std::size_t i = 0; i < n; ++i) {
       FrameStatus st;
@@ -198,6 +199,8 @@ int main(int argc, char** argv) {
           st.T_W_C = known.T_W_C;
         } else {
           st = tracker.track(depth, source->stamp(i));
+          keyframe_cells += st.model.cells;
+          refined_cells += st.model.refined;
           if (mapper) {
             // Accepted corrections move the tracker (its world is the map frame), which keeps
             // this tool's trajectories as they were; the graph keeps the tracker in odom and a
@@ -285,9 +288,11 @@ int main(int argc, char** argv) {
         cells.stats.pruned_edge, cells.stats.pruned_degenerate);
     if (tracker.config().model.enabled) {
       const SurfaceModel& model = tracker.odometry().model();
-      std::printf("registration model: voxel=%.3f m voxels=%zu MB=%.1f (%.1f B per voxel)\n",
-                  model.config().voxel_m, model.voxelCount(), model.memoryBytes() / 1e6,
-                  model.bytesPerVoxel());
+      std::printf(
+          "registration model: voxel=%.3f m voxels=%zu MB=%.1f (%.1f B per voxel); keyframe "
+          "cells refined: %ld of %ld\n",
+          model.config().voxel_m, model.voxelCount(), model.memoryBytes() / 1e6,
+          model.bytesPerVoxel(), refined_cells, keyframe_cells);
     }
     if (mapper) {
       if (!options.map_path.empty()) mapper->save(options.map_path);

@@ -176,11 +176,9 @@ void NoiseCalibration::applyTo(CellOdometryConfig* odometry) const {
 
 void NoiseCalibration::applyNoiseModelTo(CellOdometryConfig* odometry) const {
   if (!measured) return;
-  odometry->registration.noise_sigma_const_m = noise.const_m;
-  odometry->registration.noise_sigma_quad_per_m = noise.quad_per_m;
+  odometry->registration.noise = noise;
   odometry->registration.noise_ref_depth_m = z_ref_m;
-  odometry->model.noise_sigma_const_m = noise.const_m;
-  odometry->model.noise_sigma_quad_per_m = noise.quad_per_m;
+  odometry->model.noise = noise;
 }
 
 void NoiseCalibration::applyToUnchanged(const CellOdometryConfig& before,

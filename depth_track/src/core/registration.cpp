@@ -51,8 +51,7 @@ std::vector<std::string> RegistrationConfig::validate() const {
   if (!(tolerance_m >= 0.0)) p.push_back("tolerance_m must be >= 0 m");
   if (!(tolerance_rad >= 0.0)) p.push_back("tolerance_rad must be >= 0 rad");
   if (!(huber_delta_m > 0.0)) p.push_back("huber_delta_m must be > 0 m");
-  if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
-    p.push_back("noise_sigma_const_m and noise_sigma_quad_per_m must be >= 0");
+  if (!noise.valid()) p.push_back("noise: the depth-noise coefficients must be >= 0");
   if (!(noise_ref_depth_m >= 0.0)) p.push_back("noise_ref_depth_m must be >= 0 m (0 = off)");
   if (min_matches < 6) p.push_back("min_matches must be >= 6 (six unknowns)");
   for (const auto& s : degeneracy.validate()) p.push_back(s);
@@ -290,18 +289,16 @@ double huberWeight(double residual, const RegistrationConfig& config) {
 // factor and its Huber threshold.
 struct NoiseWeighting {
   bool on = false;
-  double c = 0.0, q = 0.0, sigma_ref = 0.0, z_ref = 0.0;
+  DepthNoiseModel noise;
+  double z_ref = 0.0, sigma_ref = 0.0;
   explicit NoiseWeighting(const RegistrationConfig& config)
-      : c(config.noise_sigma_const_m),
-        q(config.noise_sigma_quad_per_m),
-        z_ref(config.noise_ref_depth_m) {
-    sigma_ref = c + q * z_ref * z_ref;
+      : noise(config.noise), z_ref(config.noise_ref_depth_m), sigma_ref(noise.sigmaAt(z_ref)) {
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
   // Huber weight of residual e at reference depth z, times the noise factor.
   double weight(double e, double z, const RegistrationConfig& config) const {
     if (!on || !(z > z_ref)) return huberWeight(e, config);
-    const double ratio = (c + q * z * z) / sigma_ref;  // > 1
+    const double ratio = noise.sigmaAt(z) / sigma_ref;  // >= 1: sigma grows with depth
     return huberWeight(e, config.huber_delta_m * ratio, config.robust) / (ratio * ratio);
   }
 };

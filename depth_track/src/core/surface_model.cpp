@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-#include <tuple>
 
 namespace depth_track {
 
@@ -27,8 +26,7 @@ std::vector<std::string> SurfaceModelConfig::validate() const {
   if (min_weight < 1) p.push_back("model.min_weight must be >= 1");
   if (!(max_offset_m > 0.0)) p.push_back("model.max_offset_m must be > 0 m");
   if (!(max_offset_sigmas > 0.0)) p.push_back("model.max_offset_sigmas must be > 0");
-  if (!(noise_sigma_const_m >= 0.0) || !(noise_sigma_quad_per_m >= 0.0))
-    p.push_back("model.noise_sigma_const_m and model.noise_sigma_quad_per_m must be >= 0");
+  if (!noise.valid()) p.push_back("model.noise: the depth-noise coefficients must be >= 0");
   if (!(cos_min >= -1.0 && cos_min <= 1.0)) p.push_back("model.cos_min must lie in [-1, 1]");
   if (!(keep_radius_m >= 0.0)) p.push_back("model.keep_radius_m must be >= 0 m (0 = keep all)");
   if (prune_every < 1) p.push_back("model.prune_every must be >= 1 frame");
@@ -150,31 +148,27 @@ SurfaceModel::Voxel& SurfaceModel::findOrInsert(std::uint64_t key) {
 void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_W_C) {
   const Eigen::Matrix3f R = T_W_C.rotation().cast<float>();
   const Eigen::Vector3f t = T_W_C.translation().cast<float>();
-  // The frame's cells summed per voxel first: a voxel gains one observation per frame, the
-  // mean of the cells of that frame in it, however many cells its footprint holds.
-  struct Sum {
-    Eigen::Vector3f p = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
-    int count = 0;
-  };
-  frame_sums_.clear();
+  // The frame's cells grouped by voxel first: a voxel gains one observation per frame, the mean
+  // of that frame's cells in it, however many cells its footprint holds.
+  frame_cells_.clear();
   for (const Cell& c : cells.cells) {
     const Eigen::Vector3f p = R * c.mean_C + t;
     const Eigen::Vector3f n = R * c.normal_C;
-    if (!p.allFinite() || !n.allFinite()) continue;
-    frame_sums_.emplace_back(keyOf(p), p, n);
+    if (p.allFinite() && n.allFinite()) frame_cells_.push_back({keyOf(p), p, n});
   }
-  std::sort(frame_sums_.begin(), frame_sums_.end(),
-            [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
-  for (std::size_t i = 0; i < frame_sums_.size();) {
-    const std::uint64_t key = std::get<0>(frame_sums_[i]);
-    Sum sum;
-    for (; i < frame_sums_.size() && std::get<0>(frame_sums_[i]) == key; ++i) {
-      sum.p += std::get<1>(frame_sums_[i]);
-      sum.n += std::get<2>(frame_sums_[i]);
-      ++sum.count;
+  std::sort(frame_cells_.begin(), frame_cells_.end(),
+            [](const CellSample& a, const CellSample& b) { return a.key < b.key; });
+  for (std::size_t i = 0; i < frame_cells_.size();) {
+    const std::uint64_t key = frame_cells_[i].key;
+    Eigen::Vector3f p = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
+    const std::size_t first = i;
+    for (; i < frame_cells_.size() && frame_cells_[i].key == key; ++i) {
+      p += frame_cells_[i].p;
+      n += frame_cells_[i].n;
     }
-    const Eigen::Vector3f p = sum.p / static_cast<float>(sum.count);
-    const Eigen::Vector3f n = sum.n / static_cast<float>(sum.count);
+    const float count = static_cast<float>(i - first);
+    p /= count;
+    n /= count;
     Voxel& v = findOrInsert(key);
     if (v.weight > 0 && n[0] * v.normal[0] + n[1] * v.normal[1] + n[2] * v.normal[2] <= 0.f)
       continue;  // the other side of a thin surface: not this voxel's plane
@@ -199,9 +193,7 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
   const float cos_min = static_cast<float>(config_.cos_min);
   const float max_offset = static_cast<float>(config_.max_offset_m);
   const float k_sigma = static_cast<float>(config_.max_offset_sigmas);
-  const float sigma_c = static_cast<float>(config_.noise_sigma_const_m);
-  const float sigma_q = static_cast<float>(config_.noise_sigma_quad_per_m);
-  const bool noise_known = sigma_c > 0.f || sigma_q > 0.f;
+  const bool noise_known = config_.noise.known();
   const float voxel = static_cast<float>(config_.voxel_m);
   double sum_sq = 0.0;
   for (Cell& c : out.cells) {
@@ -209,7 +201,9 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
     const Eigen::Vector3f n_cell = R * c.normal_C;
     const float z = c.mean_C.z();
     const float gate =
-        noise_known ? std::min(max_offset, k_sigma * (sigma_c + sigma_q * z * z)) : max_offset;
+        noise_known
+            ? std::min(max_offset, k_sigma * static_cast<float>(config_.noise.sigmaAt(z)))
+            : max_offset;
     // The voxel the cell lies in and its neighbours along the cell's normal: a surface near a
     // voxel face splits its observations between the two layers by the sign of their noise,
     // and one layer alone would keep the cell on its own side. Voxels whose plane agrees with

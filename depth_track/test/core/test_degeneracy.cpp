@@ -73,6 +73,35 @@ TEST(Degeneracy, WallKeepsTheGuessInItsPlaneAndRegistersTheDepth) {
   EXPECT_LT(std::abs(r.degeneracy.weakest(5)), 0.1);
 }
 
+// With the registration model on, a view that leaves directions unfixed is registered against
+// the keyframe's own cells: approaching a bare wall with a keyframe every frame (so from the
+// fourth frame on each keyframe takes the model's planes), every pose equals the one without
+// the model, while the model does refine the keyframes.
+TEST(Degeneracy, ModelStandsAsideInADegenerateView) {
+  const std::vector<Plane> wall = {{Eigen::Vector3d(0, 0, -1), -2.0}};
+  const auto K = l515();
+  CellOdometryConfig off;
+  off.icp_frames = 1;
+  CellOdometryConfig on = off;
+  on.model.enabled = true;
+  CellOdometry odo_off(K, off), odo_on(K, on);
+  int refined = 0;
+  for (int i = 0; i < 10; ++i) {
+    const auto cells = std::make_shared<const CellCloud>(reduceToCells(
+        noisy(renderPlanes(wall, K, shifted(0.0, 0.0, 0.002 * i)), 10 + i), K, PcaConfig{}));
+    const FrameStatus a = odo_off.track(cells);
+    const FrameStatus b = odo_on.track(cells);
+    ASSERT_TRUE(a.tracked && b.tracked) << a.failure << b.failure;
+    if (i > 0) {
+      EXPECT_GT(b.degenerate_directions, 0) << i;
+    }
+    EXPECT_EQ(a.T_W_C.matrix(), b.T_W_C.matrix()) << "frame " << i;
+    refined += b.model.refined;
+  }
+  EXPECT_GT(refined, 1000);
+  EXPECT_GT(odo_on.model().voxelCount(), 0u);
+}
+
 // The corner room fixes every direction: nothing is held, and the registration recovers an
 // in-plane shift a wall alone could not.
 TEST(Degeneracy, CornerRoomHoldsNothing) {

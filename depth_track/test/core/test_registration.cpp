@@ -165,7 +165,7 @@ TEST(Registration, NoiseWeightingWeighsDeepPairsDown) {
   const CellCloud cur = reduceToCells(renderPlanes(cornerRoom(), K, truth), K, PcaConfig{});
   RegistrationConfig base = config(RegistrationMethod::kPointToPlane);
   base.match.search_radius_cells = 10;
-  base.noise_sigma_const_m = 0.001;
+  base.noise.const_m = 0.001;
   base.noise_ref_depth_m = 1.0;
   const RegistrationResult off = registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), base);
   RegistrationConfig flat = base;
@@ -175,7 +175,7 @@ TEST(Registration, NoiseWeightingWeighsDeepPairsDown) {
   EXPECT_EQ(r_flat.T_ref_cur.matrix(), off.T_ref_cur.matrix());
   EXPECT_EQ(r_flat.normal_matrix, off.normal_matrix);
   RegistrationConfig deep = flat;
-  deep.noise_sigma_quad_per_m = 0.002;  // sigma(3 m) is 6.3x sigma(1 m)
+  deep.noise.quad_per_m = 0.002;  // sigma(3 m) is 6.3x sigma(1 m)
   const RegistrationResult r_deep =
       registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), deep);
   ASSERT_TRUE(r_deep.failure.empty()) << r_deep.failure;

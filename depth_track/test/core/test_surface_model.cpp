@@ -57,7 +57,7 @@ double rmsNormalTilt(const CellCloud& cloud) {
 
 TEST(SurfaceModel, AveragedPlaneReplacesTheNoiseOfOneFrame) {
   SurfaceModelConfig config;
-  config.noise_sigma_const_m = 0.003;  // 3 sigma gate: 9 mm, above the 3 mm jitter's spread
+  config.noise.const_m = 0.003;  // 3 sigma gate: 9 mm, above the 3 mm jitter's spread
   SurfaceModel model(config);
   const Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   for (unsigned f = 0; f < 30; ++f) model.integrate(noisyWall(1.0, 0.003, 0.05, f), T);
@@ -120,7 +120,7 @@ TEST(SurfaceModel, GatesKeepTheCellsOwnPlane) {
 
   // Within a voxel but farther from its plane than the noise gate: kept as seen.
   SurfaceModelConfig noisy = config;
-  noisy.noise_sigma_const_m = 0.001;  // gate 3 mm
+  noisy.noise.const_m = 0.001;  // gate 3 mm
   model.setConfig(noisy);
   const CellCloud off = noisyWall(1.004, 0.0, 0.0, 11);
   const CellCloud kept = model.refine(off, T, &stats);
@@ -128,7 +128,7 @@ TEST(SurfaceModel, GatesKeepTheCellsOwnPlane) {
   EXPECT_GT(stats.rejected, 0);
   EXPECT_FLOAT_EQ(kept.cells[0].mean_C.z(), off.cells[0].mean_C.z());
   // ... and within it once the gate is wider.
-  noisy.noise_sigma_const_m = 0.002;  // gate 6 mm
+  noisy.noise.const_m = 0.002;  // gate 6 mm
   model.setConfig(noisy);
   model.refine(off, T, &stats);
   EXPECT_GT(stats.refined, 0);

@@ -11,18 +11,9 @@
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/depth_noise.hpp"
 
 namespace depth_track {
-
-/// Depth noise: standard deviation sigma(z) = const_m + linear z + quad_per_m z^2 of one pixel's
-/// depth about the surface, metres (z along the optical axis, metres).
-struct DepthNoiseModel {
-  double const_m = 0.0;
-  double linear = 0.0;
-  double quad_per_m = 0.0;
-  double sigmaAt(double z_m) const { return const_m + linear * z_m + quad_per_m * z_m * z_m; }
-  bool known() const { return const_m > 0.0 || linear > 0.0 || quad_per_m > 0.0; }
-};
 
 /// How the noise is measured.
 struct NoiseEstimatorConfig {

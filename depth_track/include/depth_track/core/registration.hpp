@@ -10,6 +10,8 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/degeneracy.hpp"
+#include "depth_track/core/depth_noise.hpp"
+#include "depth_track/core/depth_noise.hpp"
 #include "depth_track/core/se3.hpp"
 
 namespace depth_track {
@@ -42,14 +44,13 @@ struct RegistrationConfig {
   double tolerance_rad = 2e-4;  ///< ... and rotates less than this, radians
   bool robust = true;           ///< Huber weighting of residuals
   double huber_delta_m = 0.01;  ///< Huber threshold, metres
-  /// Depth-noise weighting of point-to-plane pairs (P2L, Cell Search): with sigma(z) =
-  /// noise_sigma_const_m + noise_sigma_quad_per_m z^2, a pair whose reference cell lies deeper
-  /// than noise_ref_depth_m weighs (sigma(z_ref) / sigma(z))^2 and its Huber threshold grows by
-  /// sigma(z) / sigma(z_ref); nearer pairs weigh 1 as without it. noise_ref_depth_m = 0 (or no
-  /// noise model) = every pair alike. auto_noise sets all three from the measured noise.
-  bool noise_weighting = false;  ///< off: every pair alike, whatever the three say
-  double noise_sigma_const_m = 0.0;
-  double noise_sigma_quad_per_m = 0.0;
+  /// Depth-noise weighting of point-to-plane pairs (P2L, Cell Search): with the sensor's sigma(z)
+  /// (`noise`), a pair whose reference cell lies deeper than noise_ref_depth_m weighs
+  /// (sigma(z_ref) / sigma(z))^2 and its Huber threshold grows by sigma(z) / sigma(z_ref); nearer
+  /// pairs weigh 1 as without it. noise_ref_depth_m = 0 (or no noise model) = every pair alike.
+  /// auto_noise sets both from the measured noise.
+  bool noise_weighting = false;  ///< off: every pair alike, whatever the other two say
+  DepthNoiseModel noise;
   double noise_ref_depth_m = 0.0;
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
   int min_matches = 30;         ///< fewer pairs than this = failure

@@ -11,10 +11,10 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <string>
-#include <tuple>
 #include <vector>
 
 #include "depth_track/core/cells.hpp"
+#include "depth_track/core/depth_noise.hpp"
 
 namespace depth_track {
 
@@ -35,14 +35,13 @@ struct SurfaceModelConfig {
   /// A keyframe cell farther than this from the model plane along its normal keeps its own
   /// mean and normal (the gate against a model that disagrees with the view), metres.
   double max_offset_m = 0.02;
-  /// ... and, with a depth-noise model sigma(z) = noise_sigma_const_m + noise_sigma_quad_per_m z^2
-  /// (auto_noise sets both; 0 = not known), farther than max_offset_sigmas sigma(z): a voxel
+  /// ... and, with the sensor's depth noise sigma(z) known (`noise`; auto_noise sets it),
+  /// farther than max_offset_sigmas sigma(z): a voxel
   /// straddling two parallel faces a few noise widths apart (a picture on a wall, a cabinet
   /// front) holds a plane between them that fits neither, and the step between them is what
   /// pins the translation along them.
   double max_offset_sigmas = 3.0;
-  double noise_sigma_const_m = 0.0;
-  double noise_sigma_quad_per_m = 0.0;
+  DepthNoiseModel noise;
   double cos_min = 0.9;  ///< ... and one whose normal differs more than this from the plane's
   /// The odometry drops the voxels farther than this from the camera every prune_every frames
   /// (0 = keeps everything): the layer then holds the surroundings, not the whole run, and its
@@ -117,8 +116,12 @@ class SurfaceModel {
   std::vector<Voxel> slots_;
   std::size_t size_ = 0;
   int bits_ = 0;
-  /// integrate()'s per-frame scratch (key, world mean, world normal of each cell).
-  std::vector<std::tuple<std::uint64_t, Eigen::Vector3f, Eigen::Vector3f>> frame_sums_;
+  /// integrate()'s per-frame scratch: each cell's voxel key, world mean and world normal.
+  struct CellSample {
+    std::uint64_t key;
+    Eigen::Vector3f p, n;
+  };
+  std::vector<CellSample> frame_cells_;
 };
 
 }  // namespace depth_track
