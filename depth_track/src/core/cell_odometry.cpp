@@ -298,8 +298,14 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     // degenerate, follows weak constraints): the velocity stays the one measured before.
     if (!held) {
       if (smoothed) {
-        // Running mean square of the smoothed prediction's error: the prior's sigma.
-        const double e2 = (T_W_C_.translation() - smoothed->translation()).squaredNorm() / 3.0;
+        // Running mean square of the smoothed prediction's error, per axis: the prior's sigma.
+        // Held modes that are mostly a rotation take the prior's rotation
+        // (withPriorAlongDegenerate), so its rotation error at the pairs' lever L counts as
+        // well; the larger of the two is the one sigma the weighing uses.
+        const double L = reg.degeneracy.length_scale_m;
+        const double e_rot_m = L * rotationAngle(smoothed->inverse() * T_W_C_);
+        const double e2 = std::max(
+            (T_W_C_.translation() - smoothed->translation()).squaredNorm(), e_rot_m * e_rot_m) / 3.0;
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
       history_.emplace_back(st.stamp_s, T_W_C_);

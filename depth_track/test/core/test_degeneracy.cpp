@@ -185,15 +185,18 @@ TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
   EXPECT_TRUE(noiseFloors(a, H, LeverMoments{}, sigma_n2).isZero());
 }
 
-// The rendered wall_slide run with L515 noise: every frame of the three seconds square on to the
-// wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over that stretch stays
-// within 5 mm per second of it, and the frames at rest looking at the furnished side (0-0.6 s)
-// and after the turn back (7.2-8 s) are not flagged. The 5 mm/s holds on this noise seed (4.25
-// mm/s), not in general: over seeds 1-10 (2026-12-03) the drift is 4.25 / 18.98 / 9.65 / 3.59 /
-// 4.31 / 2.74 / 7.33 / 21.05 / 20.56 / 16.25 mm/s, within the target on four
-// (docs/tracking.md, "Registration model"). The flagging: every degenerate frame on nine seeds
-// (seed 7: 88 of 89), no furnished frame on any (track_sequence --status-out, same seeds).
-TEST(Degeneracy, WallSlideRunFlaggedAndHeldAtTheMotionPrior) {
+// The rendered wall_slide run with L515 noise, noise seeds 1-3: every frame of the three seconds
+// square on to the wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over
+// that stretch stays within 5 mm per second of it, and the frames at rest looking at the
+// furnished side (0-0.6 s) and after the turn back (7.2-8 s) are not flagged. Seeds 1-3: 1.91 /
+// 2.38 / 1.90 mm/s. Over seeds 1-20 (2026-12-03, track_sequence --status-out) 0.81-3.43 mm/s,
+// every degenerate frame flagged and no furnished one on each. At the earlier margin of 1.5 seeds
+// 1-3 gave 4.25 / 18.98 / 9.65 mm/s (the code before), 28.8 / 59.0 / 6.4 mm/s with the
+// rotation-aware prior (docs/tracking.md, "Degenerate views"); this test fails on both.
+class WallSlide : public ::testing::TestWithParam<int> {};
+
+TEST_P(WallSlide, FlaggedAndHeldAtTheMotionPrior) {
+  const int seed = GetParam();
   const sim::RenderedRun run = sim::makeRun("wall_slide");
   const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
   Tracker tracker(run.intrinsics, TrackerConfig{});
@@ -201,7 +204,7 @@ TEST(Degeneracy, WallSlideRunFlaggedAndHeldAtTheMotionPrior) {
   int tracked = 0;
   std::vector<Eigen::Isometry3d> est;
   for (std::size_t i = 0; i < run.size(); ++i) {
-    const FrameStatus st = tracker.track(run.renderFrame(i, noise, 1), run.stamps_s[i]);
+    const FrameStatus st = tracker.track(run.renderFrame(i, noise, seed), run.stamps_s[i]);
     tracked += st.tracked;
     est.push_back(st.T_W_C);
     const double t = run.stamps_s[i];
@@ -225,9 +228,11 @@ TEST(Degeneracy, WallSlideRunFlaggedAndHeldAtTheMotionPrior) {
   const Eigen::Vector3d err_b = (align * est[b]).translation() - run.T_W_C[b].translation();
   const double drift_mm_per_s = 1e3 * (err_b - err_a).norm() / (run.stamps_s[b] - run.stamps_s[a]);
   std::printf(
-      "wall_slide: %d of %d degenerate frames flagged, %d of %d furnished; error %.2f mm "
+      "wall_slide seed %d: %d of %d degenerate frames flagged, %d of %d furnished; error %.2f mm "
       "at 2.4 s, %.2f mm at 5.4 s: %.2f mm/s over the degenerate view\n",
-      flagged_degenerate, degenerate_frames, flagged_furnished, furnished_frames,
+      seed, flagged_degenerate, degenerate_frames, flagged_furnished, furnished_frames,
       1e3 * err_a.norm(), 1e3 * err_b.norm(), drift_mm_per_s);
   EXPECT_LE(drift_mm_per_s, 5.0);
 }
+
+INSTANTIATE_TEST_SUITE_P(Seeds, WallSlide, ::testing::Values(1, 2, 3));

@@ -88,6 +88,23 @@ std::string field(const std::string& line, const std::string& key) {
   return line.substr(from, line.find_first_of(" \n", from) - from);
 }
 
+/// Two printed figure lists ("0.38,0.15,0.14") of the same values, rounded to `unit` by two
+/// programs: each pair may differ by one unit, where a value sitting on a rounding boundary
+/// rounds up in one and down in the other (the C++ tool and the Python checkers compute in
+/// different orders, so their doubles differ in the last bits).
+void expectSameRounded(const std::string& a, const std::string& b, double unit,
+                       const std::string& context) {
+  std::vector<double> va, vb;
+  for (auto [text, out] : {std::pair{&a, &va}, std::pair{&b, &vb}}) {
+    std::stringstream in(*text);
+    for (std::string item; std::getline(in, item, ',');) out->push_back(std::stod(item));
+  }
+  ASSERT_EQ(va.size(), vb.size()) << a << " vs " << b << "\n" << context;
+  ASSERT_FALSE(va.empty()) << context;
+  for (std::size_t i = 0; i < va.size(); ++i)
+    EXPECT_LE(std::abs(va[i] - vb[i]), unit * 1.001) << a << " vs " << b << "\n" << context;
+}
+
 /// Copies a bag message by message; `edit` may rewrite a message (return false to drop it).
 using Edit = std::function<bool(const rosbag::MessageInstance&, rosbag::Bag&)>;
 void copyBag(const std::string& in, const std::string& out, const Edit& edit) {
@@ -159,14 +176,15 @@ TEST_F(EvaluateBag, ScoresAgainstGroundTruthAndSensorsAsTheCheckersDo) {
   EXPECT_NE(r.output.find("  rig sensors (track_state + carriage_sensors)"), std::string::npos);
 
   // The independent checkers on the written files print the same numbers (both round the same
-  // way: 4 decimals of metres, 3 of degrees, 2 of millimetres).
+  // way: 4 decimals of metres, 3 of degrees, 2 of millimetres; a figure on a rounding boundary
+  // may differ by one unit).
   const std::string est = out.path + "/trajectory.txt",
                     gt = out.path + "/reference_ground_truth.txt";
   ASSERT_TRUE(fs::exists(est) && fs::exists(gt));
   EXPECT_EQ(field(checker(tools, "eval_traj.py", est, gt, out.path), "ate_rmse_m"), s.ate);
   const std::string pe = checker(tools, "pose_errors.py", est, gt, out.path);
-  EXPECT_EQ(field(pe, "max_err_deg"), s.deg) << pe;
-  EXPECT_EQ(field(pe, "max_err_mm"), s.mm) << pe;
+  expectSameRounded(field(pe, "max_err_deg"), s.deg, 0.001, pe);
+  expectSameRounded(field(pe, "max_err_mm"), s.mm, 0.01, pe);
   // The L515 defaults on 2 s of RT2: well inside the 0.25 deg / 3 mm chair-run targets.
   EXPECT_LT(std::stod(s.ate), 0.003);
 

@@ -33,7 +33,7 @@ namespace depth_track {
 /// measurement's information-weighted share, so the better the prior, the more of a weak
 /// direction it keeps.
 struct DegeneracyConfig {
-  double noise_margin = 1.5;  ///< 0 switches the analysis off (plain solve)
+  double noise_margin = 3.0;  ///< 0 switches the analysis off (plain solve)
   /// Standard deviation of the prior per frame along a direction (metres; at the length L for
   /// rotations) when the caller does not know it better (CellOdometry measures it from how well
   /// the recent motion fits a constant velocity).
