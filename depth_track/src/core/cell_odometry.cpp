@@ -105,7 +105,7 @@ void CellOdometry::setModelReference(const std::shared_ptr<const CellCloud>& cel
     setReference(cells);
     return;
   }
-  setReference(std::make_shared<const CellCloud>(model_.refine(*cells, T_W_C_, stats)));
+  setReference(std::make_shared<const CellCloud>(model_.refine(*cells, T_M_W_ * T_W_C_, stats)));
   raw_reference_ = cells;
   raw_grid_.build(*raw_reference_, config_.registration.match.search_radius_cells);
 }
@@ -132,8 +132,13 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   frames_since_refresh_ = 0;
   history_.clear();
   prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
+  clearModel();
+}
+
+void CellOdometry::clearModel() {
   model_.clear();
   model_frames_ = 0;
+  T_M_W_.setIdentity();
 }
 
 void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
@@ -144,6 +149,7 @@ void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
   T_W_C_ = orthonormalized(T_W_C);
   T_W_Cref_ = orthonormalized(T_W_C_ * T_C_Cref);
   for (auto& h : history_) h.second = correction * h.second;
+  T_M_W_ = orthonormalized(T_M_W_ * correction.inverse());
 }
 
 std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s) const {
@@ -208,7 +214,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     }
     last_cells_ = cells;
     last_stamp_s_ = st.stamp_s;
-    if (config_.model.enabled) model_.integrate(*cells, T_W_C_);
+    if (config_.model.enabled) model_.integrate(*cells, T_M_W_ * T_W_C_);
     setReference(std::move(cells));
     st.tracked = true;
     st.new_keyframe = true;
@@ -238,11 +244,17 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       << config_.registration.min_matches << ")";
     reg.failure = s.str();
   } else {
-    reg = registerCells(*reference_, grid_, *cells, intrinsics_, guess, reg_config);
+    // After lost frames the guess is a pose held through them, and the model's smoother planes
+    // let a registration from far off settle in a wrong minimum inside the jump gate (the
+    // graph's covered-lens run: 22 mm off, lost again 12 frames later). The keyframe's own
+    // cells are the reference until tracking resumes, as without the model.
+    const bool raw = raw_reference_ && state_ != TrackingState::kTracking;
+    reg = raw ? registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, guess, reg_config)
+              : registerCells(*reference_, grid_, *cells, intrinsics_, guess, reg_config);
     // A view that leaves directions unfixed is registered against the keyframe's own cells:
     // along the directions it does fix, the model's voxel-sized planes blur the few edges
     // that fix them.
-    if (raw_reference_ && reg.degeneracy.degenerate > 0)
+    if (!raw && raw_reference_ && reg.degeneracy.degenerate > 0)
       reg = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, guess, reg_config);
   }
   st.ms_register = msSince(t1);
@@ -336,9 +348,9 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   }
   last_cells_ = cells;
   if (st.tracked && config_.model.enabled) {
-    model_.integrate(*cells, T_W_C_);
+    model_.integrate(*cells, T_M_W_ * T_W_C_);
     if (config_.model.keep_radius_m > 0.0 && ++model_frames_ % config_.model.prune_every == 0)
-      model_.prune(T_W_C_.translation(), config_.model.keep_radius_m);
+      model_.prune(T_M_W_ * T_W_C_.translation(), config_.model.keep_radius_m);
   }
   if (st.tracked && refresh) {
     setModelReference(cells, &st.model);

@@ -82,6 +82,7 @@ TEST(Degeneracy, ModelStandsAsideInADegenerateView) {
   const auto K = l515();
   CellOdometryConfig off;
   off.icp_frames = 1;
+  off.model.enabled = false;
   CellOdometryConfig on = off;
   on.model.enabled = true;
   CellOdometry odo_off(K, off), odo_on(K, on);
@@ -100,6 +101,39 @@ TEST(Degeneracy, ModelStandsAsideInADegenerateView) {
   }
   EXPECT_GT(refined, 1000);
   EXPECT_GT(odo_on.model().voxelCount(), 0u);
+}
+
+// A correction (correctPose, as loop closure applies it) moves the odometry's world, not the
+// registration model: the model stays in the frame it was built in, so after a correction by D
+// every pose is D times the uncorrected run's and the keyframes take the model's planes as
+// before. Without the model frame's offset the keyframes would look the model up D away.
+TEST(Degeneracy, CorrectionMovesTheWorldNotTheModel) {
+  const auto K = l515();
+  CellOdometryConfig cfg;
+  cfg.icp_frames = 1;  // a keyframe every frame: every frame after the correction is refined
+  cfg.model.enabled = true;
+  CellOdometry plain(K, cfg), corrected(K, cfg);
+  Eigen::Isometry3d D = shifted(0.05, -0.03, 0.02);
+  D.linear() = Eigen::AngleAxisd(0.02, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()).toRotationMatrix();
+  long refined_plain = 0, refined_corrected = 0;
+  for (int i = 0; i < 12; ++i) {
+    const auto cells = std::make_shared<const CellCloud>(reduceToCells(
+        noisy(renderPlanes(cornerRoom(), K, shifted(0.003 * i, 0.0, 0.002 * i)), 30 + i), K,
+        PcaConfig{}));
+    const FrameStatus a = plain.track(cells);
+    const FrameStatus b = corrected.track(cells);
+    ASSERT_TRUE(a.tracked && b.tracked) << i << ": " << a.failure << b.failure;
+    if (i == 5) corrected.correctPose(D * b.T_W_C);
+    if (i > 5) {
+      const Eigen::Isometry3d expect = D * a.T_W_C;
+      EXPECT_LT((expect.translation() - b.T_W_C.translation()).norm(), 1e-9) << i;
+      EXPECT_LT(rotationAngle(expect.inverse() * b.T_W_C), 1e-9) << i;
+      refined_plain += a.model.refined;
+      refined_corrected += b.model.refined;
+    }
+  }
+  EXPECT_GT(refined_plain, 1000);
+  EXPECT_EQ(refined_corrected, refined_plain);
 }
 
 // The corner room fixes every direction: nothing is held, and the registration recovers an

@@ -143,7 +143,10 @@ class CellOdometry {
   /// window. Throws std::invalid_argument listing every problem; the old config then stays.
   void setConfig(const CellOdometryConfig& config);
   /// Replaces the current pose (e.g. after a loop-closure correction); keeps the velocity and
-  /// moves the reference frame's pose with it.
+  /// moves the reference frame's pose with it. The registration model stays where it was built
+  /// relative to the camera: its voxels are not moved, the correction is kept as the model
+  /// frame's offset from the corrected world (so the model lives in the uncorrected odometry
+  /// frame, as it does in the graph, where corrections are a map -> odom transform).
   void correctPose(const Eigen::Isometry3d& T_W_C);
 
   /// Current camera pose in the world.
@@ -194,8 +197,12 @@ class CellOdometry {
   /// degeneracy weighing.
   double prior_var_m2_ = 1e-4;
   RunningStats timing_;
+  /// Empties the registration model and its frame offset (reset).
+  void clearModel();
   SurfaceModel model_;
   long model_frames_ = 0;  ///< frames fused into the model since the start or reset (pruning)
+  /// The model's frame from the odometry's world: identity until a correctPose moves the world.
+  Eigen::Isometry3d T_M_W_ = Eigen::Isometry3d::Identity();
 };
 
 }  // namespace depth_track
