@@ -165,8 +165,8 @@ int main(int argc, char** argv) {
       std::fprintf(
           status,
           "stamp_s,tracked,cells,candidates,matches,fm_matches,duplicates_broken,iterations,"
-          "error_rms_m,degenerate,weakest_information,new_keyframe,ms_prefilter,ms_reduce,ms_register,"
-          "ms_total,failure\n");
+          "error_rms_m,degenerate,weakest_information,new_keyframe,ms_prefilter,ms_reduce,"
+          "ms_register,ms_total,failure\n");
     }
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
@@ -243,11 +243,12 @@ int main(int argc, char** argv) {
             st.failure.c_str());
       }
       if (status)
-        std::fprintf(status, "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
+        std::fprintf(status,
+                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
                      st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
-                     st.weakest_information, st.new_keyframe, st.ms_prefilter, st.ms_reduce, st.ms_register,
-                     st.ms_total, st.failure.c_str());
+                     st.weakest_information, st.new_keyframe, st.ms_prefilter, st.ms_reduce,
+                     st.ms_register, st.ms_total, st.failure.c_str());
     }
     if (status) std::fclose(status);
     const std::string what =

@@ -105,7 +105,7 @@ void CellOdometry::setModelReference(const std::shared_ptr<const CellCloud>& cel
     setReference(cells);
     return;
   }
-  setReference(std::make_shared<const CellCloud>(model_.refine(*cells, T_M_W_ * T_W_C_, stats)));
+  setReference(std::make_shared<const CellCloud>(model_.refine(*cells, modelPose(), stats)));
   raw_reference_ = cells;
   raw_grid_.build(*raw_reference_, config_.registration.match.search_radius_cells);
 }
@@ -214,7 +214,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     }
     last_cells_ = cells;
     last_stamp_s_ = st.stamp_s;
-    if (config_.model.enabled) model_.integrate(*cells, T_M_W_ * T_W_C_);
+    if (config_.model.enabled) model_.integrate(*cells, modelPose());
     setReference(std::move(cells));
     st.tracked = true;
     st.new_keyframe = true;
@@ -249,8 +249,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     // graph's covered-lens run: 22 mm off, lost again 12 frames later). The keyframe's own
     // cells are the reference until tracking resumes, as without the model.
     const bool raw = raw_reference_ && state_ != TrackingState::kTracking;
-    reg = raw ? registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, guess, reg_config)
-              : registerCells(*reference_, grid_, *cells, intrinsics_, guess, reg_config);
+    reg = registerCells(raw ? *raw_reference_ : *reference_, raw ? raw_grid_ : grid_, *cells,
+                        intrinsics_, guess, reg_config);
     // A view that leaves directions unfixed is registered against the keyframe's own cells:
     // along the directions it does fix, the model's voxel-sized planes blur the few edges
     // that fix them.
@@ -316,8 +316,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         // well; the larger of the two is the one sigma the weighing uses.
         const double L = reg.degeneracy.length_scale_m;
         const double e_rot_m = L * rotationAngle(smoothed->inverse() * T_W_C_);
-        const double e2 = std::max(
-            (T_W_C_.translation() - smoothed->translation()).squaredNorm(), e_rot_m * e_rot_m) / 3.0;
+        const double e_trans2 = (T_W_C_.translation() - smoothed->translation()).squaredNorm();
+        const double e2 = std::max(e_trans2, e_rot_m * e_rot_m) / 3.0;
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
       history_.emplace_back(st.stamp_s, T_W_C_);
@@ -348,9 +348,10 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   }
   last_cells_ = cells;
   if (st.tracked && config_.model.enabled) {
-    model_.integrate(*cells, T_M_W_ * T_W_C_);
+    const Eigen::Isometry3d T_M_C = modelPose();
+    model_.integrate(*cells, T_M_C);
     if (config_.model.keep_radius_m > 0.0 && ++model_frames_ % config_.model.prune_every == 0)
-      model_.prune(T_M_W_ * T_W_C_.translation(), config_.model.keep_radius_m);
+      model_.prune(T_M_C.translation(), config_.model.keep_radius_m);
   }
   if (st.tracked && refresh) {
     setModelReference(cells, &st.model);

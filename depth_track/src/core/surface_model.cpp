@@ -201,9 +201,8 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
     const Eigen::Vector3f n_cell = R * c.normal_C;
     const float z = c.mean_C.z();
     const float gate =
-        noise_known
-            ? std::min(max_offset, k_sigma * static_cast<float>(config_.noise.sigmaAt(z)))
-            : max_offset;
+        noise_known ? std::min(max_offset, k_sigma * static_cast<float>(config_.noise.sigmaAt(z)))
+                    : max_offset;
     // The voxel the cell lies in and its neighbours along the cell's normal: a surface near a
     // voxel face splits its observations between the two layers by the sign of their noise,
     // and one layer alone would keep the cell on its own side. Voxels whose plane agrees with

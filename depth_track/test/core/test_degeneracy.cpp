@@ -114,7 +114,8 @@ TEST(Degeneracy, CorrectionMovesTheWorldNotTheModel) {
   cfg.model.enabled = true;
   CellOdometry plain(K, cfg), corrected(K, cfg);
   Eigen::Isometry3d D = shifted(0.05, -0.03, 0.02);
-  D.linear() = Eigen::AngleAxisd(0.02, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()).toRotationMatrix();
+  D.linear() =
+      Eigen::AngleAxisd(0.02, Eigen::Vector3d(0.3, 1.0, 0.2).normalized()).toRotationMatrix();
   long refined_plain = 0, refined_corrected = 0;
   for (int i = 0; i < 12; ++i) {
     const auto cells = std::make_shared<const CellCloud>(reduceToCells(

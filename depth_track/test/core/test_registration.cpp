@@ -170,14 +170,12 @@ TEST(Registration, NoiseWeightingWeighsDeepPairsDown) {
   const RegistrationResult off = registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), base);
   RegistrationConfig flat = base;
   flat.noise_weighting = true;  // sigma(z) = 1 mm everywhere: every ratio is 1
-  const RegistrationResult r_flat =
-      registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), flat);
+  const RegistrationResult r_flat = registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), flat);
   EXPECT_EQ(r_flat.T_ref_cur.matrix(), off.T_ref_cur.matrix());
   EXPECT_EQ(r_flat.normal_matrix, off.normal_matrix);
   RegistrationConfig deep = flat;
   deep.noise.quad_per_m = 0.002;  // sigma(3 m) is 6.3x sigma(1 m)
-  const RegistrationResult r_deep =
-      registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), deep);
+  const RegistrationResult r_deep = registerCells(ref, cur, K, Eigen::Isometry3d::Identity(), deep);
   ASSERT_TRUE(r_deep.failure.empty()) << r_deep.failure;
   EXPECT_LT(r_deep.normal_matrix.trace(), 0.8 * off.normal_matrix.trace());
   const Eigen::Isometry3d err = truth.inverse() * r_deep.T_ref_cur;

@@ -199,6 +199,8 @@ class CellOdometry {
   RunningStats timing_;
   /// Empties the registration model and its frame offset (reset).
   void clearModel();
+  /// The current camera in the model's frame: where integrate, refine and prune read it.
+  Eigen::Isometry3d modelPose() const { return T_M_W_ * T_W_C_; }
   SurfaceModel model_;
   long model_frames_ = 0;  ///< frames fused into the model since the start or reset (pruning)
   /// The model's frame from the odometry's world: identity until a correctPose moves the world.

@@ -11,7 +11,6 @@
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/degeneracy.hpp"
 #include "depth_track/core/depth_noise.hpp"
-#include "depth_track/core/depth_noise.hpp"
 #include "depth_track/core/se3.hpp"
 
 namespace depth_track {
