@@ -35,6 +35,15 @@ std::vector<std::string> RelocaliseConfig::validate() const {
   if (!(initial_dist_m >= 0.0)) p.push_back("relocalise.initial_dist_m must be >= 0 m");
   if (max_iterations < 1 || max_iterations > 1000)
     p.push_back("relocalise.max_iterations must lie in [1, 1000]");
+  if (!(search_angle_deg >= 0.0 && search_angle_deg <= 45.0))
+    p.push_back("relocalise.search_angle_deg must lie in [0, 45] deg");
+  if (!(search_step_deg > 0.0)) p.push_back("relocalise.search_step_deg must be > 0 deg");
+  if (screen_iterations < 1 || screen_iterations > 1000)
+    p.push_back("relocalise.screen_iterations must lie in [1, 1000]");
+  if (screened_kept < 1 || screened_kept > 100)
+    p.push_back("relocalise.screened_kept must lie in [1, 100]");
+  if (!(min_overlap >= 0.0 && min_overlap <= 1.0))
+    p.push_back("relocalise.min_overlap must lie in [0, 1]");
   return p;
 }
 
@@ -363,6 +372,89 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   return st;
 }
 
+namespace {
+
+// The starts of a relocalisation: the guess, then the guess turned about the camera's x and y
+// axes by multiples of search_step_deg up to search_angle_deg (the camera centre stays).
+std::vector<Eigen::Isometry3d> relocalisationStarts(const Eigen::Isometry3d& guess,
+                                                    const RelocaliseConfig& rc) {
+  std::vector<Eigen::Isometry3d> starts = {guess};
+  if (!(rc.search_angle_deg > 0.0)) return starts;
+  const int steps = static_cast<int>(std::floor(rc.search_angle_deg / rc.search_step_deg));
+  for (int ix = -steps; ix <= steps; ++ix)
+    for (int iy = -steps; iy <= steps; ++iy) {
+      if (ix == 0 && iy == 0) continue;
+      Eigen::Isometry3d turn = Eigen::Isometry3d::Identity();
+      turn.linear() =
+          (Eigen::AngleAxisd(ix * rc.search_step_deg * kDegToRad, Eigen::Vector3d::UnitX()) *
+           Eigen::AngleAxisd(iy * rc.search_step_deg * kDegToRad, Eigen::Vector3d::UnitY()))
+              .toRotationMatrix();
+      starts.push_back(guess * turn);
+    }
+  return starts;
+}
+
+}  // namespace
+
+std::vector<Eigen::Isometry3d> CellOdometry::screenRelocalisationStarts(
+    const CellCloud& reference, const CellCloud& cur, const Eigen::Isometry3d& guess,
+    const RegistrationConfig& reg) const {
+  const RelocaliseConfig& rc = config_.relocalise;
+  std::vector<Eigen::Isometry3d> starts = relocalisationStarts(guess, rc);
+  if (starts.size() == 1) return starts;
+  // A few iterations from each start, every direction solved; the starts whose screens paired
+  // the most cells within the residual gate go on.
+  RegistrationConfig screen = reg;
+  screen.max_iterations = rc.screen_iterations;
+  screen.degeneracy.noise_margin = 0.0;
+  std::vector<std::pair<int, Eigen::Isometry3d>> screened;  // (pairs or -1, pose)
+  for (const Eigen::Isometry3d& s0 : starts) {
+    const RegistrationResult sr = registerCells(reference, cur, intrinsics_, s0, screen);
+    const bool usable = sr.failure.empty() && sr.T_ref_cur.matrix().allFinite() &&
+                        sr.error_rms_m <= config_.max_error_rms_m;
+    screened.emplace_back(usable ? sr.matches : -1, usable ? sr.T_ref_cur : s0);
+  }
+  std::stable_sort(screened.begin(), screened.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  starts.clear();
+  for (int k = 0; k < rc.screened_kept && k < static_cast<int>(screened.size()); ++k)
+    if (screened[k].first > 0 || k == 0) starts.push_back(screened[k].second);
+  return starts;
+}
+
+std::string CellOdometry::judgeRelocalisation(const CellCloud& reference, const CellCloud& cur,
+                                              const RegistrationResult& res) const {
+  std::ostringstream why;
+  const double denom = static_cast<double>(
+      std::max<std::size_t>(1, std::min(reference.cells.size(), cur.cells.size())));
+  if (!res.failure.empty()) {
+    why << "registration failed: " << res.failure;
+  } else if (!res.T_ref_cur.matrix().allFinite()) {
+    why << "registration diverged (non-finite)";
+  } else if (res.error_rms_m > config_.max_error_rms_m) {
+    why << "residual " << res.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
+        << config_.max_error_rms_m * 1000.0 << " mm";
+  } else if (res.matches < config_.relocalise.min_overlap * denom) {
+    why << res.matches << " pairs, " << 100.0 * res.matches / denom
+        << " % of the cells (relocalise.min_overlap " << 100.0 * config_.relocalise.min_overlap
+        << " %)";
+  } else if (config_.registration.degeneracy.noise_margin > 0.0) {
+    // Where the pose landed, the view must fix every direction: against a reference that does
+    // not (a lone wall), some start pairs up somewhere along it. One step at the result with the
+    // tracking window and the degeneracy analysis, the prior as wide as the first pass's gate,
+    // so only what the view cannot fix is held.
+    RegistrationConfig verify = config_.registration;
+    verify.max_iterations = 1;
+    verify.degeneracy.prior_sigma_m = config_.relocalise.initial_dist_m;
+    const int held =
+        registerCells(reference, cur, intrinsics_, res.T_ref_cur, verify).degeneracy.degenerate;
+    if (held > 0)
+      why << "the view does not fix " << held << " direction" << (held > 1 ? "s" : "")
+          << " of the pose there";
+  }
+  return why.str();
+}
+
 RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
                                               const Eigen::Isometry3d& T_W_Cref,
                                               const Eigen::Isometry3d& T_W_C_guess) {
@@ -384,27 +476,42 @@ RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
   reg.match.search_radius_cells = config_.relocalise.search_radius_cells;
   reg.match.initial_dist_m = config_.relocalise.initial_dist_m;
   reg.max_iterations = config_.relocalise.max_iterations;
-  // The guess is a pose held through lost frames, not a motion prior worth keeping along
-  // directions the first, badly aligned pairs seem not to fix: every direction is solved.
-  reg.degeneracy.noise_margin = 0.0;
-  r.registration =
-      registerCells(reference, cur, intrinsics_, T_W_Cref.inverse() * T_W_C_guess, reg);
-  const RegistrationResult& res = r.registration;
-  std::ostringstream why;
-  if (!res.failure.empty()) {
-    why << "registration failed: " << res.failure;
-  } else if (!res.T_ref_cur.matrix().allFinite()) {
-    why << "registration diverged (non-finite)";
-  } else if (res.error_rms_m > config_.max_error_rms_m) {
-    why << "residual " << res.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
-        << config_.max_error_rms_m * 1000.0 << " mm";
-  }
-  if (!why.str().empty()) {
-    r.reason = why.str();
+  reg.degeneracy.prior_sigma_m = config_.relocalise.initial_dist_m;
+  const std::vector<Eigen::Isometry3d> starts =
+      screenRelocalisationStarts(reference, cur, T_W_Cref.inverse() * T_W_C_guess, reg);
+  // From each start two registrations, the one pairing the most cells kept among those the
+  // checks accept: every direction solved (the guess is a pose held through lost frames, not a
+  // motion prior worth keeping along directions the first, badly aligned pairs seem not to fix),
+  // and directions the view does not fix held at the start, since in a view close to degenerate
+  // (a wall and little else) the plain solve slides along the wall on noise, off the view.
+  std::string rejected, kept;
+  RegistrationResult last;
+  bool have = false;
+  for (const Eigen::Isometry3d& start : starts)
+    for (const bool hold : {false, true}) {
+      reg.degeneracy.noise_margin = hold ? config_.registration.degeneracy.noise_margin : 0.0;
+      if (hold && !(reg.degeneracy.noise_margin > 0.0)) break;
+      RegistrationResult res = registerCells(reference, cur, intrinsics_, start, reg);
+      const char* how = hold ? "holding unfixed directions" : "solving every direction";
+      const std::string why = judgeRelocalisation(reference, cur, res);
+      if (!why.empty()) {
+        rejected += (rejected.empty() ? "" : "; ") + std::string(how) + ": " + why;
+        if (!have) last = std::move(res);
+      } else if (!have || res.matches > r.registration.matches) {
+        r.registration = std::move(res);
+        kept = how;
+        have = true;
+      }
+    }
+  if (!have) {
+    r.registration = std::move(last);
+    r.reason = rejected;
     if (state_ != TrackingState::kTracking) state_ = TrackingState::kRelocalising;
     r.ms = msSince(t0);
     return r;
   }
+  const RegistrationResult& res = r.registration;
+  std::ostringstream why;
   T_W_C_ = orthonormalized(T_W_Cref * res.T_ref_cur);
   velocity_T_Cprev_Ccur_ = Eigen::Isometry3d::Identity();
   history_.clear();
@@ -412,8 +519,8 @@ RelocalisationResult CellOdometry::relocalise(const CellCloud& reference,
   state_ = TrackingState::kTracking;
   r.accepted = true;
   r.T_W_C = T_W_C_;
-  why << "accepted: " << res.matches << " pairs, residual " << res.error_rms_m * 1000.0 << " mm, "
-      << res.iterations << " iterations";
+  why << "accepted (" << kept << "): " << res.matches << " pairs, residual "
+      << res.error_rms_m * 1000.0 << " mm, " << res.iterations << " iterations";
   r.reason = why.str();
   r.ms = msSince(t0);
   return r;

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <optional>
 #include <random>
 #include <thread>
@@ -224,7 +225,10 @@ TEST(CellOdometry, LostThenRelocalisedAgainstAModelView) {
   const RelocalisationResult bad =
       tracker.odometry().relocalise(*wall_cells, model_pose, model_pose);
   EXPECT_FALSE(bad.accepted);
-  EXPECT_FALSE(bad.reason.empty());
+  std::printf("lone wall: %s\n", bad.reason.c_str());
+  // Some start pairs one of the room's walls onto it: the check that the view fixes every
+  // direction where the pose landed refuses it.
+  EXPECT_NE(bad.reason.find("does not fix"), std::string::npos) << bad.reason;
   EXPECT_EQ(tracker.odometry().state(), TrackingState::kRelocalising);
   EXPECT_EQ(tracker.pose().matrix(), model_pose.matrix());
   back = tracker.track(DepthImage(640, 480, 0.0f), i / 30.0);  // still lost: still relocalising

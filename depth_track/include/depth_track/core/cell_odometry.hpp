@@ -26,6 +26,18 @@ struct RelocaliseConfig {
   int search_radius_cells = 4;  ///< image-grid window of the first pass, cells
   double initial_dist_m = 0.3;  ///< first-iteration pair gate, halved per iteration, metres
   int max_iterations = 60;      ///< ICP iterations
+  /// Starts of the search besides the guess: the guess turned about the camera's x and y axes
+  /// by multiples of search_step_deg up to search_angle_deg (a held pose is off mostly in
+  /// rotation after a turn the prediction missed: 10 deg moves the view ~90 px, beyond the
+  /// window). Each start is screened with screen_iterations; the best screened_kept (most
+  /// pairs) are then registered to convergence. search_angle_deg 0 = the guess alone.
+  double search_angle_deg = 10.0;
+  double search_step_deg = 5.0;
+  int screen_iterations = 12;
+  int screened_kept = 2;
+  /// Share of the smaller of the two clouds (the frame's cells, the reference's) that must pair
+  /// up at the result: a registration that slid off the view onto a sliver of it pairs few.
+  double min_overlap = 0.3;
 
   std::vector<std::string> validate() const;
 };
@@ -173,6 +185,16 @@ class CellOdometry {
   void setModelReference(const std::shared_ptr<const CellCloud>& cells, ModelRefineStats* stats);
   /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
   std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s) const;
+  /// relocalise(): the starts worth registering to convergence (T_ref_cur), screened from the
+  /// guess and its turns (RelocaliseConfig::search_angle_deg) with `reg`'s search.
+  std::vector<Eigen::Isometry3d> screenRelocalisationStarts(const CellCloud& reference,
+                                                            const CellCloud& cur,
+                                                            const Eigen::Isometry3d& guess,
+                                                            const RegistrationConfig& reg) const;
+  /// relocalise(): why a registration of `cur` onto `reference` is refused (residual, overlap,
+  /// a view that does not fix every direction where it landed), empty if accepted.
+  std::string judgeRelocalisation(const CellCloud& reference, const CellCloud& cur,
+                                  const RegistrationResult& res) const;
 
   PinholeIntrinsics intrinsics_;
   CellOdometryConfig config_;
