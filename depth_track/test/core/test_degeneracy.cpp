@@ -223,8 +223,9 @@ TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
 // The rendered wall_slide run with L515 noise, noise seeds 1-3: every frame of the three seconds
 // square on to the wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over
 // that stretch stays within 5 mm per second of it, and the frames at rest looking at the
-// furnished side (0-0.6 s) and after the turn back (7.2-8 s) are not flagged. Seeds 1-3: 1.91 /
-// 2.38 / 1.90 mm/s. Over seeds 1-20 (2026-12-03, track_sequence --status-out) 0.81-3.43 mm/s,
+// furnished side (0-0.6 s) and after the turn back (7.2-8 s) are not flagged. Seeds 1-3 with
+// the registration model (the default since 2026-12-03): 2.59 / 3.68 / 3.08 mm/s; without it
+// 1.91 / 2.38 / 1.90 mm/s. Without the model, over seeds 1-20 (2026-12-03, track_sequence --status-out) 0.81-3.43 mm/s,
 // every degenerate frame flagged and no furnished one on each. At the earlier margin of 1.5 seeds
 // 1-3 gave 4.25 / 18.98 / 9.65 mm/s (the code before), 28.8 / 59.0 / 6.4 mm/s with the
 // rotation-aware prior (docs/tracking.md, "Degenerate views"); this test fails on both.
