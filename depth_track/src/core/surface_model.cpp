@@ -134,6 +134,12 @@ std::size_t SurfaceModel::prune(const Eigen::Vector3d& centre_W, double radius_m
   return dropped;
 }
 
+void SurfaceModel::prefetchSlot(std::uint64_t key) const {
+  const std::size_t i = slotOf(key);
+  __builtin_prefetch(&keys_[i]);
+  __builtin_prefetch(&slots_[i]);
+}
+
 SurfaceModel::Voxel& SurfaceModel::findOrInsert(std::uint64_t key) {
   if (10 * (size_ + 1) > 7 * keys_.size()) grow();  // load factor at most 0.7
   const std::size_t mask = keys_.size() - 1;
@@ -158,7 +164,14 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
   }
   std::sort(frame_cells_.begin(), frame_cells_.end(),
             [](const CellSample& a, const CellSample& b) { return a.key < b.key; });
+  // Grow before the loop (at most one new voxel per sample), so the slots prefetched below stay
+  // where they are: the table is far larger than the cache, and each voxel is a random access.
+  while (10 * (size_ + frame_cells_.size()) > 7 * keys_.size()) grow();
+  constexpr std::size_t kAhead = 16;  // samples
+  for (std::size_t j = 0; j < std::min(kAhead, frame_cells_.size()); ++j)
+    prefetchSlot(frame_cells_[j].key);
   for (std::size_t i = 0; i < frame_cells_.size();) {
+    if (i + kAhead < frame_cells_.size()) prefetchSlot(frame_cells_[i + kAhead].key);
     const std::uint64_t key = frame_cells_[i].key;
     Eigen::Vector3f p = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
     const std::size_t first = i;

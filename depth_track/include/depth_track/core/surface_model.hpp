@@ -102,6 +102,8 @@ class SurfaceModel {
   /// The voxel of `key`, inserted empty (weight 0) when missing.
   Voxel& findOrInsert(std::uint64_t key);
   std::size_t slotOf(std::uint64_t key) const;
+  /// Asks the cache for the home slot of `key` (a table of at least one slot).
+  void prefetchSlot(std::uint64_t key) const;
   void grow();
   /// Re-inserts the occupied slots of (keys, slots) into a fresh table of 2^bits slots, keeping
   /// those `keep` accepts.
