@@ -374,6 +374,21 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
 
 namespace {
 
+// Why a registration's result is unusable at all (failed, non-finite, residual above the
+// tracking gate), empty if it is usable: the screens and the final check of a relocalisation.
+std::string unusableRegistration(const RegistrationResult& res, double max_error_rms_m) {
+  std::ostringstream why;
+  if (!res.failure.empty()) {
+    why << "registration failed: " << res.failure;
+  } else if (!res.T_ref_cur.matrix().allFinite()) {
+    why << "registration diverged (non-finite)";
+  } else if (res.error_rms_m > max_error_rms_m) {
+    why << "residual " << res.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
+        << max_error_rms_m * 1000.0 << " mm";
+  }
+  return why.str();
+}
+
 // The starts of a relocalisation: the guess, then the guess turned about the camera's x and y
 // axes by multiples of search_step_deg up to search_angle_deg (the camera centre stays).
 std::vector<Eigen::Isometry3d> relocalisationStarts(const Eigen::Isometry3d& guess,
@@ -410,8 +425,7 @@ std::vector<Eigen::Isometry3d> CellOdometry::screenRelocalisationStarts(
   std::vector<std::pair<int, Eigen::Isometry3d>> screened;  // (pairs or -1, pose)
   for (const Eigen::Isometry3d& s0 : starts) {
     const RegistrationResult sr = registerCells(reference, cur, intrinsics_, s0, screen);
-    const bool usable = sr.failure.empty() && sr.T_ref_cur.matrix().allFinite() &&
-                        sr.error_rms_m <= config_.max_error_rms_m;
+    const bool usable = unusableRegistration(sr, config_.max_error_rms_m).empty();
     screened.emplace_back(usable ? sr.matches : -1, usable ? sr.T_ref_cur : s0);
   }
   std::stable_sort(screened.begin(), screened.end(),
@@ -424,17 +438,12 @@ std::vector<Eigen::Isometry3d> CellOdometry::screenRelocalisationStarts(
 
 std::string CellOdometry::judgeRelocalisation(const CellCloud& reference, const CellCloud& cur,
                                               const RegistrationResult& res) const {
+  const std::string unusable = unusableRegistration(res, config_.max_error_rms_m);
+  if (!unusable.empty()) return unusable;
   std::ostringstream why;
   const double denom = static_cast<double>(
       std::max<std::size_t>(1, std::min(reference.cells.size(), cur.cells.size())));
-  if (!res.failure.empty()) {
-    why << "registration failed: " << res.failure;
-  } else if (!res.T_ref_cur.matrix().allFinite()) {
-    why << "registration diverged (non-finite)";
-  } else if (res.error_rms_m > config_.max_error_rms_m) {
-    why << "residual " << res.error_rms_m * 1000.0 << " mm exceeds max_error_rms_m "
-        << config_.max_error_rms_m * 1000.0 << " mm";
-  } else if (res.matches < config_.relocalise.min_overlap * denom) {
+  if (res.matches < config_.relocalise.min_overlap * denom) {
     why << res.matches << " pairs, " << 100.0 * res.matches / denom
         << " % of the cells (relocalise.min_overlap " << 100.0 * config_.relocalise.min_overlap
         << " %)";

@@ -225,10 +225,11 @@ TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
 // that stretch stays within 5 mm per second of it, and the frames at rest looking at the
 // furnished side (0-0.6 s) and after the turn back (7.2-8 s) are not flagged. Seeds 1-3 with
 // the registration model (the default since 2026-12-03): 2.59 / 3.68 / 3.08 mm/s; without it
-// 1.91 / 2.38 / 1.90 mm/s. Without the model, over seeds 1-20 (2026-12-03, track_sequence --status-out) 0.81-3.43 mm/s,
-// every degenerate frame flagged and no furnished one on each. At the earlier margin of 1.5 seeds
-// 1-3 gave 4.25 / 18.98 / 9.65 mm/s (the code before), 28.8 / 59.0 / 6.4 mm/s with the
-// rotation-aware prior (docs/tracking.md, "Degenerate views"); this test fails on both.
+// 1.91 / 2.38 / 1.90 mm/s. Without the model, over seeds 1-20 (2026-12-03, track_sequence
+// --status-out) 0.81-3.43 mm/s, every degenerate frame flagged and no furnished one on each. At the
+// earlier margin of 1.5 seeds 1-3 gave 4.25 / 18.98 / 9.65 mm/s (the code before), 28.8 / 59.0
+// / 6.4 mm/s with the rotation-aware prior (docs/tracking.md, "Degenerate views"); this test fails
+// on both.
 class WallSlide : public ::testing::TestWithParam<int> {};
 
 TEST_P(WallSlide, FlaggedAndHeldAtTheMotionPrior) {
