@@ -278,8 +278,11 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   st.degenerate_directions = reg.degeneracy.degenerate;
   st.weakest_information = weakestInformation(reg.degeneracy);
   if (reg.matches > 0)
-    st.covariance = registrationCovariance(reg.degeneracy, reg.error_rms_m * reg.error_rms_m,
-                                           reg_config.degeneracy);
+    st.covariance = registrationCovariance(
+        reg.degeneracy,
+        reg.degeneracy.residual_var_m2 > 0.0 ? reg.degeneracy.residual_var_m2
+                                             : reg.error_rms_m * reg.error_rms_m,
+        reg_config.degeneracy);
 
   std::string failure = reg.failure;
   if (failure.empty() && !reg.T_ref_cur.matrix().allFinite())

@@ -177,7 +177,6 @@ void NoiseCalibration::applyTo(CellOdometryConfig* odometry) const {
 void NoiseCalibration::applyNoiseModelTo(CellOdometryConfig* odometry) const {
   if (!measured) return;
   odometry->registration.noise = noise;
-  odometry->registration.noise_ref_depth_m = z_ref_m;
   odometry->model.noise = noise;
 }
 

@@ -295,11 +295,17 @@ struct NoiseWeighting {
       : noise(config.noise), z_ref(config.noise_ref_depth_m), sigma_ref(noise.sigmaAt(z_ref)) {
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
-  // Huber weight of residual e at reference depth z, times the noise factor.
-  double weight(double e, double z, const RegistrationConfig& config) const {
-    if (!on || !(z > z_ref)) return huberWeight(e, config);
+  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z: 1 when off or
+  // not deeper than z_ref. Its Huber threshold grows by sigma(z) / sigma(z_ref) = factor^-1/2.
+  double factor(double z) const {
+    if (!on || !(z > z_ref)) return 1.0;
     const double ratio = noise.sigmaAt(z) / sigma_ref;  // >= 1: sigma grows with depth
-    return huberWeight(e, config.huber_delta_m * ratio, config.robust) / (ratio * ratio);
+    return 1.0 / (ratio * ratio);
+  }
+  // Huber weight of residual e whose pair has noise factor f (above), times f.
+  double weight(double e, double f, const RegistrationConfig& config) const {
+    if (f == 1.0) return huberWeight(e, config);
+    return huberWeight(e, config.huber_delta_m / std::sqrt(f), config.robust) * f;
   }
 };
 
@@ -318,7 +324,12 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
   double h[21] = {0};
   Vector6d g = Vector6d::Zero();
-  double sq = 0.0, range2 = 0.0, misalign = 0.0;
+  // sq_unit: squared residuals scaled by their noise factors, whose mean is the residual
+  // variance of a pair of weight 1 (at or nearer than the weighting's reference depth). The
+  // information along a direction is its weighted eigenvalue over that variance: over the plain
+  // mean, which the deep, noisy pairs dominate, a view the near pairs fix well would read as
+  // barely fixed and be held at the motion prior.
+  double sq = 0.0, sq_unit = 0.0, range2 = 0.0, misalign = 0.0;
   LeverMoments levers;
   const NoiseWeighting noise(config);
   for (const auto& [r, c] : m.pairs) {
@@ -326,13 +337,15 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
     const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
     const Eigen::Vector3d p = moved.p[c].cast<double>();
     const double e = n.dot(p - q);
+    const double f = noise.factor(q.z());
     sq += e * e;
+    sq_unit += f * e * e;
     const Eigen::Vector3d lever = p - c_ref;
     range2 += lever.squaredNorm();
     misalign += 1.0 - std::min(1.0, n.dot(moved.n[c].cast<double>()));
     const Eigen::Vector3d pxn = lever.cross(n);
     const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
-    const double w = noise.weight(e, q.z(), config);
+    const double w = noise.weight(e, f, config);
     levers.add(lever, w);
     int k = 0;
     for (int i = 0; i < 6; ++i) {
@@ -350,11 +363,12 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   const std::size_t n_pairs = std::max<std::size_t>(1, m.pairs.size());
   *rms = std::sqrt(sq / n_pairs);
   *analysis = analyseNormalEquations(H, levers.wsum, std::sqrt(range2 / n_pairs));
+  analysis->residual_var_m2 = sq_unit / n_pairs;
   if (config.degeneracy.noise_margin > 0.0) {
     // What the normals' noise alone puts into each eigen-direction (DegeneracyConfig): 1 - cos
     // of two independently noisy normals averages twice one normal's in-plane variance.
     applyNoiseFloors(analysis, noiseFloors(*analysis, H, levers, 0.5 * misalign / n_pairs),
-                     sq / n_pairs, config.degeneracy);
+                     analysis->residual_var_m2, config.degeneracy);
   }
   const Vector6d y = solveConstrained(*analysis, g);  // [omega; u]
   xi->head<3>() = y.head<3>();

@@ -114,9 +114,12 @@ std::vector<ParamSpec> makeParams() {
   p.push_back(num("min_matches", "", "fewer pairs = failed frame",
                   [](TrackerConfig& c) -> int& { return c.registration.min_matches; }));
   p.push_back(num("noise_weighting", "",
-                  "pairs deeper than the calibration's reference depth weigh by their depth "
-                  "noise, (sigma(z_ref)/sigma(z))^2 (on/off; needs auto_noise)",
+                  "pairs deeper than noise_weighting_depth weigh by their inverse depth-noise "
+                  "variance, (sigma(z_ref)/sigma(z))^2 (on/off; needs a noise model: auto_noise)",
                   [](TrackerConfig& c) -> bool& { return c.registration.noise_weighting; }));
+  p.push_back(num("noise_weighting_depth", "m",
+                  "... z_ref: nearer pairs weigh 1 (0 = every pair alike)",
+                  [](TrackerConfig& c) -> double& { return c.registration.noise_ref_depth_m; }));
   p.push_back(
       num("degeneracy_margin", "",
           "pose information below this many times its normal-noise floor counts as none; "

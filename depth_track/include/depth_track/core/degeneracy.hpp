@@ -46,6 +46,10 @@ struct DegeneracyConfig {
 struct DegeneracyAnalysis {
   double length_scale_m = 1.0;  ///< L, metres
   double weight_sum = 0.0;      ///< sum of the residual weights
+  /// Residual variance of a pair of weight 1, m^2: the mean squared residual, each scaled by
+  /// its depth-noise factor (RegistrationConfig::noise_weighting; without it the plain mean).
+  /// The gains and the pose covariance read the information against it. 0 = not computed.
+  double residual_var_m2 = 0.0;
   /// Eigenvalues of S H S / weight_sum (S = diag(1/L, 1/L, 1/L, 1, 1, 1)), ascending, and their
   /// eigenvectors in scaled coordinates [L omega; u] (columns). A translation direction's value
   /// is the mean squared normal component along it: about 1/3 for normals spread evenly.

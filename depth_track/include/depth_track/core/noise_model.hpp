@@ -103,7 +103,8 @@ struct NoiseCalibration {
   /// (applyNoiseModelTo); nothing when !measured.
   void applyTo(CellOdometryConfig* odometry) const;
   /// Sets only the measured sigma(z) where the odometry reads it: the registration's depth-noise
-  /// weighting (with z_ref) and the registration model's offset gate; nothing when !measured.
+  /// weighting (its reference depth stays the configured noise_ref_depth_m, not z_ref_m) and the
+  /// registration model's offset gate; nothing when !measured.
   void applyNoiseModelTo(CellOdometryConfig* odometry) const;
   /// For a runtime reconfiguration from `before` to `*after` (both as configured, without the
   /// calibration): the calibrated value of each of those three that the reconfiguration left as

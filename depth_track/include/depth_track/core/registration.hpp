@@ -44,13 +44,20 @@ struct RegistrationConfig {
   bool robust = true;           ///< Huber weighting of residuals
   double huber_delta_m = 0.01;  ///< Huber threshold, metres
   /// Depth-noise weighting of point-to-plane pairs (P2L, Cell Search): with the sensor's sigma(z)
-  /// (`noise`), a pair whose reference cell lies deeper than noise_ref_depth_m weighs
-  /// (sigma(z_ref) / sigma(z))^2 and its Huber threshold grows by sigma(z) / sigma(z_ref); nearer
-  /// pairs weigh 1 as without it. noise_ref_depth_m = 0 (or no noise model) = every pair alike.
-  /// auto_noise sets both from the measured noise.
-  bool noise_weighting = false;  ///< off: every pair alike, whatever the other two say
+  /// (`noise`; auto_noise measures it on the first frames), a pair whose reference cell lies
+  /// deeper than noise_ref_depth_m weighs (sigma(z_ref) / sigma(z))^2, its inverse variance, and
+  /// its Huber threshold grows by sigma(z) / sigma(z_ref); nearer pairs weigh 1. The gains of
+  /// the degeneracy analysis and the pose covariance read the information against the residual
+  /// variance of a pair of weight 1 (DegeneracyAnalysis::residual_var_m2). No noise model or
+  /// noise_ref_depth_m = 0: every pair alike.
+  /// On by default since 2026-12-04: on real Kinect depth the far floor's errors, which move with
+  /// the camera, otherwise pull the estimate back to the keyframe (TUM fr3/teddy 0.064 -> 0.008 m,
+  /// docs/tracking.md "Depth-noise weighting").
+  bool noise_weighting = true;
   DepthNoiseModel noise;
-  double noise_ref_depth_m = 0.0;
+  /// Metres. Not the scene's depth: nearer pairs are not weighed up, as the near range of a
+  /// stereo or structured-light sensor is not as much better as the quadratic model says.
+  double noise_ref_depth_m = 1.0;
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
   int min_matches = 30;         ///< fewer pairs than this = failure
   /// Directions of the pose the pairs do not constrain keep the initial guess (P2L, Cell Search).
