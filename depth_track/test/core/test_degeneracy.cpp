@@ -7,6 +7,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <cmath>
+#include <cstdio>
 #include <random>
 
 #include "depth_track/core/cell_odometry.hpp"
@@ -224,38 +225,40 @@ TEST(Degeneracy, NoiseFloorsClosedFormEqualsThePairSum) {
 // square on to the wall (2.4-5.4 s, at 0.15 m/s) is flagged degenerate, the error gathered over
 // that stretch stays within 5 mm per second of it, and the frames at rest looking at the
 // furnished side (0-0.6 s) and after the turn back (7.2-8 s) are not flagged. Seeds 1-3 with
-// the registration model (the default since 2026-12-03): 2.59 / 3.68 / 3.08 mm/s; without it
+// the defaults of 2026-12-04 (registration model and depth-noise weighting on): 2.72 / 3.65 /
+// 2.96 mm/s; with the model before the weighting: 2.59 / 3.68 / 3.08 mm/s; without either
 // 1.91 / 2.38 / 1.90 mm/s. Without the model, over seeds 1-20 (2026-12-03, track_sequence
 // --status-out) 0.81-3.43 mm/s, every degenerate frame flagged and no furnished one on each. At the
 // earlier margin of 1.5 seeds 1-3 gave 4.25 / 18.98 / 9.65 mm/s (the code before), 28.8 / 59.0
 // / 6.4 mm/s with the rotation-aware prior (docs/tracking.md, "Degenerate views"); this test fails
 // on both.
-class WallSlide : public ::testing::TestWithParam<int> {};
-
-TEST_P(WallSlide, FlaggedAndHeldAtTheMotionPrior) {
-  const int seed = GetParam();
-  const sim::RenderedRun run = sim::makeRun("wall_slide");
-  const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
-  Tracker tracker(run.intrinsics, TrackerConfig{});
+namespace {
+struct WallSlideRun {
+  int frames = 0, tracked = 0;
   int degenerate_frames = 0, flagged_degenerate = 0, furnished_frames = 0, flagged_furnished = 0;
-  int tracked = 0;
+  double drift_mm_per_s = 0.0;
+};
+
+WallSlideRun trackWallSlide(sim::NoiseModel model, int seed) {
+  const sim::RenderedRun run = sim::makeRun("wall_slide");
+  const sim::NoiseConfig noise = sim::NoiseConfig::forModel(model);
+  Tracker tracker(run.intrinsics, TrackerConfig{});
+  WallSlideRun r;
+  r.frames = static_cast<int>(run.size());
   std::vector<Eigen::Isometry3d> est;
   for (std::size_t i = 0; i < run.size(); ++i) {
     const FrameStatus st = tracker.track(run.renderFrame(i, noise, seed), run.stamps_s[i]);
-    tracked += st.tracked;
+    r.tracked += st.tracked;
     est.push_back(st.T_W_C);
     const double t = run.stamps_s[i];
     if (t > 2.4 + 1e-6 && t < 5.4 - 1e-6) {
-      ++degenerate_frames;
-      flagged_degenerate += st.degenerate_directions > 0;
+      ++r.degenerate_frames;
+      r.flagged_degenerate += st.degenerate_directions > 0;
     } else if ((t > 0.0 && t < 0.6) || t > 7.2) {
-      ++furnished_frames;
-      flagged_furnished += st.degenerate_directions > 0;
+      ++r.furnished_frames;
+      r.flagged_furnished += st.degenerate_directions > 0;
     }
   }
-  EXPECT_EQ(tracked, static_cast<int>(run.size()));
-  EXPECT_EQ(flagged_degenerate, degenerate_frames);
-  EXPECT_EQ(flagged_furnished, 0) << "of " << furnished_frames;
   // Error gathered over the degenerate stretch: the estimate's motion from its first to its last
   // frame against the truth's, both relative to the first pose of the run (est[0] = truth[0]).
   const auto at = [&](double t) { return static_cast<std::size_t>(std::lround(t * 30.0)); };
@@ -263,13 +266,43 @@ TEST_P(WallSlide, FlaggedAndHeldAtTheMotionPrior) {
   const Eigen::Isometry3d align = run.T_W_C[0] * est[0].inverse();
   const Eigen::Vector3d err_a = (align * est[a]).translation() - run.T_W_C[a].translation();
   const Eigen::Vector3d err_b = (align * est[b]).translation() - run.T_W_C[b].translation();
-  const double drift_mm_per_s = 1e3 * (err_b - err_a).norm() / (run.stamps_s[b] - run.stamps_s[a]);
+  r.drift_mm_per_s = 1e3 * (err_b - err_a).norm() / (run.stamps_s[b] - run.stamps_s[a]);
   std::printf(
-      "wall_slide seed %d: %d of %d degenerate frames flagged, %d of %d furnished; error %.2f mm "
-      "at 2.4 s, %.2f mm at 5.4 s: %.2f mm/s over the degenerate view\n",
-      seed, flagged_degenerate, degenerate_frames, flagged_furnished, furnished_frames,
-      1e3 * err_a.norm(), 1e3 * err_b.norm(), drift_mm_per_s);
-  EXPECT_LE(drift_mm_per_s, 5.0);
+      "wall_slide %s seed %d: %d of %d degenerate frames flagged, %d of %d furnished; error "
+      "%.2f mm at 2.4 s, %.2f mm at 5.4 s: %.2f mm/s over the degenerate view\n",
+      sim::noiseModelName(model).c_str(), seed, r.flagged_degenerate, r.degenerate_frames,
+      r.flagged_furnished, r.furnished_frames, 1e3 * err_a.norm(), 1e3 * err_b.norm(),
+      r.drift_mm_per_s);
+  return r;
+}
+}  // namespace
+
+class WallSlide : public ::testing::TestWithParam<int> {};
+
+TEST_P(WallSlide, FlaggedAndHeldAtTheMotionPrior) {
+  const WallSlideRun r = trackWallSlide(sim::NoiseModel::kL515, GetParam());
+  EXPECT_EQ(r.tracked, r.frames);
+  EXPECT_EQ(r.flagged_degenerate, r.degenerate_frames);
+  EXPECT_EQ(r.flagged_furnished, 0) << "of " << r.furnished_frames;
+  EXPECT_LE(r.drift_mm_per_s, 5.0);
 }
 
 INSTANTIATE_TEST_SUITE_P(Seeds, WallSlide, ::testing::Values(1, 2, 3));
+
+// The same run with D435 noise, where the 5 mm/s target is NOT met: with the defaults of
+// 2026-12-04 (depth-noise weighting on) seeds 1-10 drift 7.33 / 5.99 / 6.66 / 7.76 / 7.66 / 4.52
+// / 3.93 / 7.87 / 8.64 / 7.25 mm/s (before the weighting 5.8-60.4, median 10.4), and seed 3
+// flags 88 of the 89 degenerate frames. A guard at 1.23x the largest of seeds 1-3 (the code
+// before the weighting, 9.44 / 5.83 / 9.16 mm/s, fails it on seeds 1 and 3), and every
+// degenerate frame but two flagged, none of the furnished ones.
+class WallSlideD435 : public ::testing::TestWithParam<int> {};
+
+TEST_P(WallSlideD435, GuardedNearTheMeasuredDrift) {
+  const WallSlideRun r = trackWallSlide(sim::NoiseModel::kD435, GetParam());
+  EXPECT_EQ(r.tracked, r.frames);
+  EXPECT_GE(r.flagged_degenerate, r.degenerate_frames - 2);
+  EXPECT_EQ(r.flagged_furnished, 0) << "of " << r.furnished_frames;
+  EXPECT_LE(r.drift_mm_per_s, 9.0);  // guard; the target is 5 mm/s
+}
+
+INSTANTIATE_TEST_SUITE_P(Seeds, WallSlideD435, ::testing::Values(1, 2, 3));
