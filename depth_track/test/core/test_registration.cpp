@@ -225,6 +225,17 @@ TEST(Registration, NoiseWeightingReadsInformationAgainstUnitWeightVariance) {
   EXPECT_GT(r.degeneracy.residual_var_m2, 0.0);
   EXPECT_LT(r.degeneracy.residual_var_m2, 0.5 * plain);
   EXPECT_EQ(r.degeneracy.degenerate, 0);
+  // The gains are the ones that variance gives (applyNoiseFloors): information above the noise
+  // margin, over residual_var_m2, against the prior's.
+  const DegeneracyAnalysis& a = r.degeneracy;
+  const double prior_info = 1.0 / (c.degeneracy.prior_sigma_m * c.degeneracy.prior_sigma_m);
+  for (int i = 0; i < 6; ++i) {
+    if (!(a.noise_floor(i) > 0.0)) continue;
+    const double excess =
+        std::max(0.0, a.eigenvalues(i) - c.degeneracy.noise_margin * a.noise_floor(i));
+    const double info = excess * a.weight_sum / a.residual_var_m2;
+    EXPECT_NEAR(a.gain(i), info / (info + prior_info), 1e-9) << "direction " << i;
+  }
   const Eigen::Isometry3d err = truth.inverse() * r.T_ref_cur;
   EXPECT_LT(err.translation().norm(), 0.003);
   EXPECT_LT(rotationAngle(err) / kDegToRad, 0.1);
