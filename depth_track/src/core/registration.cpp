@@ -295,17 +295,17 @@ struct NoiseWeighting {
       : noise(config.noise), z_ref(config.noise_ref_depth_m), sigma_ref(noise.sigmaAt(z_ref)) {
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
-  // sigma(z) / sigma(z_ref) of a pair at reference depth z (>= 1: sigma grows with depth); 1 when
-  // off or not deeper than z_ref. The pair weighs 1 / ratio^2, its inverse variance.
-  double ratio(double z) const {
+  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z: 1 when off or
+  // not deeper than z_ref. Its Huber threshold grows by sigma(z) / sigma(z_ref) = factor^-1/2.
+  double factor(double z) const {
     if (!on || !(z > z_ref)) return 1.0;
-    return noise.sigmaAt(z) / sigma_ref;
+    const double ratio = noise.sigmaAt(z) / sigma_ref;  // >= 1: sigma grows with depth
+    return 1.0 / (ratio * ratio);
   }
-  // Huber weight of residual e whose pair has noise ratio `ratio` (above): the Huber threshold
-  // grows by the ratio, and the weight is divided by its square.
-  double weight(double e, double ratio, const RegistrationConfig& config) const {
-    if (ratio == 1.0) return huberWeight(e, config);
-    return huberWeight(e, config.huber_delta_m * ratio, config.robust) / (ratio * ratio);
+  // Huber weight of residual e whose pair has noise factor f (above), times f.
+  double weight(double e, double f, const RegistrationConfig& config) const {
+    if (f == 1.0) return huberWeight(e, config);
+    return huberWeight(e, config.huber_delta_m / std::sqrt(f), config.robust) * f;
   }
 };
 
@@ -324,7 +324,7 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
   // Upper triangle of J^T W J (21 terms) and J^T W e, accumulated by hand.
   double h[21] = {0};
   Vector6d g = Vector6d::Zero();
-  // sq_unit: squared residuals divided by their noise ratios squared, whose mean is the residual
+  // sq_unit: squared residuals scaled by their noise factors, whose mean is the residual
   // variance of a pair of weight 1 (at or nearer than the weighting's reference depth). The
   // information along a direction is its weighted eigenvalue over that variance: over the plain
   // mean, which the deep, noisy pairs dominate, a view the near pairs fix well would read as
@@ -337,15 +337,15 @@ bool solvePointToPlane(const CellCloud& reference, const Moved& moved, const Mat
     const Eigen::Vector3d n = reference.cells[r].normal_C.cast<double>();
     const Eigen::Vector3d p = moved.p[c].cast<double>();
     const double e = n.dot(p - q);
-    const double ratio = noise.ratio(q.z());
+    const double f = noise.factor(q.z());
     sq += e * e;
-    sq_unit += e * e / (ratio * ratio);
+    sq_unit += f * e * e;
     const Eigen::Vector3d lever = p - c_ref;
     range2 += lever.squaredNorm();
     misalign += 1.0 - std::min(1.0, n.dot(moved.n[c].cast<double>()));
     const Eigen::Vector3d pxn = lever.cross(n);
     const double J[6] = {pxn.x(), pxn.y(), pxn.z(), n.x(), n.y(), n.z()};
-    const double w = noise.weight(e, ratio, config);
+    const double w = noise.weight(e, f, config);
     levers.add(lever, w);
     int k = 0;
     for (int i = 0; i < 6; ++i) {
