@@ -30,6 +30,7 @@ std::vector<std::string> NoiseEstimatorConfig::validate() const {
   if (!(bin_m > 0.0)) p.push_back("bin_m must be > 0 m");
   if (min_cells_per_bin < 3) p.push_back("min_cells_per_bin must be >= 3");
   if (!(quantile > 0.0 && quantile < 1.0)) p.push_back("quantile must lie in (0, 1)");
+  if (!(planar_tolerance >= 0.0)) p.push_back("planar_tolerance must be >= 0 (0 = off)");
   return p;
 }
 
@@ -37,6 +38,28 @@ NoiseEstimator::NoiseEstimator(const NoiseEstimatorConfig& config) : config_(con
   const auto problems = config.validate();
   if (!problems.empty())
     throw std::invalid_argument("noise estimator config: " + joinProblems(problems));
+}
+
+bool NoiseEstimator::inPlanarNeighbourhood(const CellCloud& cloud, const Cell& c,
+                                           float rms_m) const {
+  // A cell across a crease or a step has a residual of geometry, not of noise, and on some
+  // views (a corridor's far corners) such cells outnumber the plain ones at their depth. Its
+  // neighbours' means (each averaging a cell of pixels, so far less noisy than one pixel) then
+  // lie off its plane by centimetres; on a plane they lie within a fraction of the pixel RMS.
+  const float tol = static_cast<float>(config_.planar_tolerance) * rms_m;
+  int present = 0;
+  for (int dy = -1; dy <= 1; ++dy) {
+    for (int dx = -1; dx <= 1; ++dx) {
+      if (dx == 0 && dy == 0) continue;
+      const int gx = c.gx + dx, gy = c.gy + dy;
+      if (gx < 0 || gy < 0 || gx >= cloud.grid_w || gy >= cloud.grid_h) return false;
+      const int k = cloud.cellAt(gx, gy);
+      if (k < 0) continue;
+      ++present;
+      if (std::abs(c.normal_C.dot(cloud.cells[k].mean_C - c.mean_C)) > tol) return false;
+    }
+  }
+  return present >= 6;
 }
 
 void NoiseEstimator::addFrame(const DepthImage& depth, const PinholeIntrinsics& intrinsics) {
@@ -59,7 +82,9 @@ void NoiseEstimator::addFrame(const DepthImage& depth, const PinholeIntrinsics& 
     const float cos_inc = r > 0.0f ? std::abs(c.normal_C.dot(c.mean_C)) / r : 0.0f;
     if (cos_inc < config_.min_incidence_cos || c.n_valid < 4) continue;
     const float var = std::max(0.0f, c.normal_C.dot(c.cov * c.normal_C));
-    samples_.push_back({c.mean_C.z(), std::sqrt(var) / cos_inc});
+    const float rms = std::sqrt(var);
+    if (config_.planar_tolerance > 0.0 && !inPlanarNeighbourhood(cloud, c, rms)) continue;
+    samples_.push_back({c.mean_C.z(), rms / cos_inc});
   }
 }
 

@@ -48,6 +48,39 @@ TEST(NoiseEstimator, RecoversTheRenderedSensorsNoiseWithinAFactor) {
   EXPECT_GT(d435, 3.0 * l515);
 }
 
+// Hall1's first frame (L515 noise, seed 1): at 2.5-2.75 m most of the cells that face the camera
+// lie on one column across the corridor's far corner, whose residual is geometry (6 mm with no
+// noise at all). Counted, they read the sensor at 17.5 mm at 3 m (the renderer's: 4.8 mm) and the
+// depth-noise weighting then discounts the far hallway 60-fold. The neighbourhood test leaves
+// them out.
+TEST(NoiseEstimator, CellsAcrossCreasesDoNotCount) {
+  const sim::RenderedRun run = sim::makeRun("hall1");
+  const sim::NoiseConfig truth = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  const DepthImage img = run.renderFrame(0, truth, 1);
+  NoiseEstimator with_test;
+  with_test.addFrame(img, run.intrinsics);
+  std::printf("hall1 frame 0: %s\n", with_test.summary().c_str());
+  NoiseEstimatorConfig off;
+  off.planar_tolerance = 0.0;
+  NoiseEstimator without(off);
+  without.addFrame(img, run.intrinsics);
+  std::printf("hall1 frame 0, no neighbourhood test: %s\n", without.summary().c_str());
+  for (const double z : {1.5, 2.5}) {
+    const double ratio = with_test.model().sigmaAt(z) / truth.sigmaAt(z);
+    EXPECT_GT(ratio, 0.7) << "at " << z << " m";
+    EXPECT_LT(ratio, 1.4) << "at " << z << " m";
+  }
+  // What the test is for: without it the crease column doubles the far estimate.
+  EXPECT_GT(without.model().sigmaAt(2.5) / truth.sigmaAt(2.5), 2.0);
+  EXPECT_LT(with_test.cells(), without.cells());
+}
+
+TEST(NoiseEstimator, RejectsABadNeighbourhoodTolerance) {
+  NoiseEstimatorConfig c;
+  c.planar_tolerance = -1.0;
+  EXPECT_THROW(NoiseEstimator{c}, std::invalid_argument);
+}
+
 TEST(NoiseEstimator, EmptyOrFlatFramesGiveNoModel) {
   NoiseEstimator est;
   EXPECT_FALSE(est.model().known());

@@ -27,6 +27,10 @@ struct NoiseEstimatorConfig {
   /// Per bin the lower quartile of the cells' RMS: curved cells and cells across edges only ever
   /// add to a plane-fit residual, so the low end is the sensor.
   double quantile = 0.25;
+  /// A cell counts only inside a plane: at least 6 of its 8 neighbours kept, and every kept
+  /// neighbour's mean within this many times the cell's pixel RMS of the cell's plane (0 = no
+  /// test). Cells at the image border are left out.
+  double planar_tolerance = 3.0;
 
   std::vector<std::string> validate() const;
 };
@@ -55,6 +59,7 @@ class NoiseEstimator {
   struct Sample {
     float z_m, sigma_m;
   };
+  bool inPlanarNeighbourhood(const CellCloud& cloud, const Cell& c, float rms_m) const;
   NoiseEstimatorConfig config_;
   std::vector<Sample> samples_;
   long probed_ = 0, holed_ = 0;
