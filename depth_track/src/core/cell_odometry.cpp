@@ -59,6 +59,8 @@ std::vector<std::string> CellOdometryConfig::validate() const {
   if (!(max_jump_deg > 0.0)) p.push_back("max_jump_deg must be > 0 deg");
   if (velocity_window < 0 || velocity_window > 300)
     p.push_back("velocity_window must lie in [0, 300] frames");
+  if (!(velocity_firm_information >= 0.0))
+    p.push_back("velocity_firm_information must be >= 0 (0 = every frame counts)");
   for (const auto& s : relocalise.validate()) p.push_back(s);
   for (const auto& s : model.validate()) p.push_back(s);
   return p;
@@ -157,33 +159,42 @@ void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
   const Eigen::Isometry3d correction = orthonormalized(T_W_C) * T_W_C_.inverse();
   T_W_C_ = orthonormalized(T_W_C);
   T_W_Cref_ = orthonormalized(T_W_C_ * T_C_Cref);
-  for (auto& h : history_) h.second = correction * h.second;
+  for (auto& h : history_) h.T_W_C = correction * h.T_W_C;
   T_M_W_ = orthonormalized(T_M_W_ * correction.inverse());
 }
 
-std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s) const {
+std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s,
+                                                                  bool firm_only) const {
   if (config_.velocity_window < 2 || history_.size() < 2) return std::nullopt;
+  std::vector<const HistoryEntry*> used;
+  if (firm_only && config_.velocity_firm_information > 0.0)
+    for (const HistoryEntry& h : history_)
+      if (h.firm) used.push_back(&h);
+  if (used.size() < 3) {
+    used.clear();
+    for (const HistoryEntry& h : history_) used.push_back(&h);
+  }
   // Translation: least-squares line through the positions (its slope is the world velocity);
   // rotation: the mean body rate from the first to the last pose of the window.
   double tm = 0.0;
   Eigen::Vector3d pm = Eigen::Vector3d::Zero();
-  for (const auto& [t, T] : history_) {
-    tm += t;
-    pm += T.translation();
+  for (const HistoryEntry* h : used) {
+    tm += h->stamp_s;
+    pm += h->T_W_C.translation();
   }
-  tm /= static_cast<double>(history_.size());
-  pm /= static_cast<double>(history_.size());
+  tm /= static_cast<double>(used.size());
+  pm /= static_cast<double>(used.size());
   double stt = 0.0;
   Eigen::Vector3d stp = Eigen::Vector3d::Zero();
-  for (const auto& [t, T] : history_) {
-    stt += (t - tm) * (t - tm);
-    stp += (t - tm) * (T.translation() - pm);
+  for (const HistoryEntry* h : used) {
+    stt += (h->stamp_s - tm) * (h->stamp_s - tm);
+    stp += (h->stamp_s - tm) * (h->T_W_C.translation() - pm);
   }
-  const double span = history_.back().first - history_.front().first;
+  const double span = used.back()->stamp_s - used.front()->stamp_s;
   if (!(stt > 0.0) || !(span > 0.0)) return std::nullopt;
   const double dt = stamp_s - last_stamp_s_;
-  const Eigen::AngleAxisd rate(history_.front().second.rotation().transpose() *
-                               history_.back().second.rotation());
+  const Eigen::AngleAxisd rate(used.front()->T_W_C.rotation().transpose() *
+                               used.back()->T_W_C.rotation());
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = T_W_C_.rotation() *
                Eigen::AngleAxisd(rate.angle() * dt / span, rate.axis()).toRotationMatrix();
@@ -240,6 +251,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   const std::optional<Eigen::Isometry3d> smoothed = prior_T_Cprev_Ccur || !config_.constant_velocity
                                                         ? std::nullopt
                                                         : smoothedPrediction(st.stamp_s);
+  const std::optional<Eigen::Isometry3d> smoothed_firm =
+      smoothed ? smoothedPrediction(st.stamp_s, true) : std::nullopt;
   RegistrationConfig reg_config = config_.registration;
   reg_config.degeneracy.prior_sigma_m = std::sqrt(prior_var_m2_);
   // A motion prior exists only while tracking: after lost frames the guess is a pose held through
@@ -311,9 +324,9 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     Eigen::Isometry3d T_ref_cur = reg.T_ref_cur;
     // The registration kept the prediction (the last frame's motion) along the held
     // directions; there the smoothed velocity of the frames before is the better prior.
-    if (held && smoothed)
-      T_ref_cur =
-          withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * *smoothed);
+    if (held && smoothed_firm)
+      T_ref_cur = withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur,
+                                           T_W_Cref_.inverse() * *smoothed_firm);
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     st.tracked = true;
     state_ = TrackingState::kTracking;
@@ -332,7 +345,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         const double e2 = std::max(e_trans2, e_rot_m * e_rot_m) / 3.0;
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
-      history_.emplace_back(st.stamp_s, T_W_C_);
+      history_.push_back({st.stamp_s, T_W_C_,
+                          st.weakest_information >= config_.velocity_firm_information});
       while (static_cast<int>(history_.size()) > std::max(2, config_.velocity_window))
         history_.pop_front();
     }

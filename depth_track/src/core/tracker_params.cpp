@@ -145,6 +145,10 @@ std::vector<ParamSpec> makeParams() {
   p.push_back(num("velocity_window", "frames",
                   "prediction's translation from the velocity fitted over this many frames",
                   [](TrackerConfig& c) -> int& { return c.velocity_window; }));
+  p.push_back(num("velocity_firm_information", "",
+                  "held directions follow the velocity of the window's frames whose weakest "
+                  "direction had at least this many times its noise floor (0 = all frames)",
+                  [](TrackerConfig& c) -> double& { return c.velocity_firm_information; }));
   p.push_back(num("auto_noise", "",
                   "measure the depth noise on the first frame and set edge test, pooling and "
                   "gates from it (on/off)",

@@ -64,6 +64,13 @@ struct CellOdometryConfig {
   /// frames of a view turning degenerate follow weak constraints. <= 1 = the last frame's
   /// motion, as everywhere else.
   int velocity_window = 20;
+  /// The velocity the held directions follow is fitted to the window's firm frames only: those
+  /// whose weakest direction carried at least this many times its noise floor
+  /// (FrameStatus::weakest_information). A view turning degenerate fixes its weak directions less
+  /// and less before they are held, and the frames in between slide along them; fitted to them,
+  /// the velocity carries that slide through the whole degenerate stretch. With fewer than three
+  /// firm frames in the window, all count. 0 = all frames count.
+  double velocity_firm_information = 10.0;
   RelocaliseConfig relocalise;
   /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
   /// cells replaced by the model's planes where it is confident (SurfaceModel).
@@ -184,7 +191,9 @@ class CellOdometry {
   /// what it did goes to *stats.
   void setModelReference(const std::shared_ptr<const CellCloud>& cells, ModelRefineStats* stats);
   /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
-  std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s) const;
+  /// firm_only: fitted to the firm frames (CellOdometryConfig::velocity_firm_information) when
+  /// the window holds at least three.
+  std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s, bool firm_only = false) const;
   /// relocalise(): the starts worth registering to convergence (T_ref_cur), screened from the
   /// guess and its turns (RelocaliseConfig::search_angle_deg) with `reg`'s search.
   std::vector<Eigen::Isometry3d> screenRelocalisationStarts(const CellCloud& reference,
@@ -212,8 +221,13 @@ class CellOdometry {
   TrackingState state_ = TrackingState::kLost;
   int frames_since_refresh_ = 0;
   double last_stamp_s_ = 0.0;
-  /// (stamp, pose) of the last velocity_window tracked frames whose view fixed every direction.
-  std::deque<std::pair<double, Eigen::Isometry3d>> history_;
+  /// The last velocity_window tracked frames whose view fixed every direction.
+  struct HistoryEntry {
+    double stamp_s;
+    Eigen::Isometry3d T_W_C;
+    bool firm;  ///< weakest information at least velocity_firm_information
+  };
+  std::deque<HistoryEntry> history_;
   /// Running mean square per axis of the smoothed prediction's position error on frames whose
   /// view fixed every direction, m^2, starting at (1 cm)^2: the prior's variance for the
   /// degeneracy weighing.
