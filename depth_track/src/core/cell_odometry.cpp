@@ -166,35 +166,38 @@ void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
 std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s,
                                                                   bool firm_only) const {
   if (config_.velocity_window < 2 || history_.size() < 2) return std::nullopt;
-  std::vector<const HistoryEntry*> used;
-  if (firm_only && config_.velocity_firm_information > 0.0)
-    for (const HistoryEntry& h : history_)
-      if (h.firm) used.push_back(&h);
-  if (used.size() < 3) {
-    used.clear();
-    for (const HistoryEntry& h : history_) used.push_back(&h);
-  }
+  const double threshold = config_.velocity_firm_information;
+  const auto is_firm = [&](const HistoryEntry& h) { return h.weakest_information >= threshold; };
+  const bool only_firm = firm_only && threshold > 0.0 &&
+                         std::count_if(history_.begin(), history_.end(), is_firm) >= 3;
+  const auto counts = [&](const HistoryEntry& h) { return !only_firm || is_firm(h); };
   // Translation: least-squares line through the positions (its slope is the world velocity);
   // rotation: the mean body rate from the first to the last pose of the window.
-  double tm = 0.0;
+  double tm = 0.0, n = 0.0;
   Eigen::Vector3d pm = Eigen::Vector3d::Zero();
-  for (const HistoryEntry* h : used) {
-    tm += h->stamp_s;
-    pm += h->T_W_C.translation();
+  const HistoryEntry* first = nullptr;
+  const HistoryEntry* last = nullptr;
+  for (const HistoryEntry& h : history_) {
+    if (!counts(h)) continue;
+    if (!first) first = &h;
+    last = &h;
+    tm += h.stamp_s;
+    pm += h.T_W_C.translation();
+    n += 1.0;
   }
-  tm /= static_cast<double>(used.size());
-  pm /= static_cast<double>(used.size());
+  tm /= n;
+  pm /= n;
   double stt = 0.0;
   Eigen::Vector3d stp = Eigen::Vector3d::Zero();
-  for (const HistoryEntry* h : used) {
-    stt += (h->stamp_s - tm) * (h->stamp_s - tm);
-    stp += (h->stamp_s - tm) * (h->T_W_C.translation() - pm);
+  for (const HistoryEntry& h : history_) {
+    if (!counts(h)) continue;
+    stt += (h.stamp_s - tm) * (h.stamp_s - tm);
+    stp += (h.stamp_s - tm) * (h.T_W_C.translation() - pm);
   }
-  const double span = used.back()->stamp_s - used.front()->stamp_s;
+  const double span = last->stamp_s - first->stamp_s;
   if (!(stt > 0.0) || !(span > 0.0)) return std::nullopt;
   const double dt = stamp_s - last_stamp_s_;
-  const Eigen::AngleAxisd rate(used.front()->T_W_C.rotation().transpose() *
-                               used.back()->T_W_C.rotation());
+  const Eigen::AngleAxisd rate(first->T_W_C.rotation().transpose() * last->T_W_C.rotation());
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.linear() = T_W_C_.rotation() *
                Eigen::AngleAxisd(rate.angle() * dt / span, rate.axis()).toRotationMatrix();
@@ -251,8 +254,6 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   const std::optional<Eigen::Isometry3d> smoothed = prior_T_Cprev_Ccur || !config_.constant_velocity
                                                         ? std::nullopt
                                                         : smoothedPrediction(st.stamp_s);
-  const std::optional<Eigen::Isometry3d> smoothed_firm =
-      smoothed ? smoothedPrediction(st.stamp_s, true) : std::nullopt;
   RegistrationConfig reg_config = config_.registration;
   reg_config.degeneracy.prior_sigma_m = std::sqrt(prior_var_m2_);
   // A motion prior exists only while tracking: after lost frames the guess is a pose held through
@@ -323,10 +324,13 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   if (failure.empty()) {
     Eigen::Isometry3d T_ref_cur = reg.T_ref_cur;
     // The registration kept the prediction (the last frame's motion) along the held
-    // directions; there the smoothed velocity of the frames before is the better prior.
-    if (held && smoothed_firm)
-      T_ref_cur = withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur,
-                                           T_W_Cref_.inverse() * *smoothed_firm);
+    // directions; there the smoothed velocity of the firm frames before is the better prior
+    // (T_W_C_ and the window are still those `smoothed` was made from).
+    if (held && smoothed) {
+      const Eigen::Isometry3d prior = smoothedPrediction(st.stamp_s, true).value_or(*smoothed);
+      T_ref_cur =
+          withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
+    }
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     st.tracked = true;
     state_ = TrackingState::kTracking;
@@ -345,8 +349,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         const double e2 = std::max(e_trans2, e_rot_m * e_rot_m) / 3.0;
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
-      history_.push_back({st.stamp_s, T_W_C_,
-                          st.weakest_information >= config_.velocity_firm_information});
+      history_.push_back({st.stamp_s, T_W_C_, st.weakest_information});
       while (static_cast<int>(history_.size()) > std::max(2, config_.velocity_window))
         history_.pop_front();
     }

@@ -51,15 +51,13 @@ bool NoiseEstimator::inPlanarNeighbourhood(const CellCloud& cloud, const Cell& c
   for (int dy = -1; dy <= 1; ++dy) {
     for (int dx = -1; dx <= 1; ++dx) {
       if (dx == 0 && dy == 0) continue;
-      const int gx = c.gx + dx, gy = c.gy + dy;
-      if (gx < 0 || gy < 0 || gx >= cloud.grid_w || gy >= cloud.grid_h) return false;
-      const int k = cloud.cellAt(gx, gy);
+      const int k = cloud.cellAt(c.gx + dx, c.gy + dy);  // -1 beyond the border too
       if (k < 0) continue;
       ++present;
       if (std::abs(c.normal_C.dot(cloud.cells[k].mean_C - c.mean_C)) > tol) return false;
     }
   }
-  return present >= 6;
+  return present >= 6;  // a border cell has at most 5
 }
 
 void NoiseEstimator::addFrame(const DepthImage& depth, const PinholeIntrinsics& intrinsics) {

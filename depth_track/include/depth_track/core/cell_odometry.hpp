@@ -225,7 +225,7 @@ class CellOdometry {
   struct HistoryEntry {
     double stamp_s;
     Eigen::Isometry3d T_W_C;
-    bool firm;  ///< weakest information at least velocity_firm_information
+    double weakest_information;  ///< FrameStatus's: firm at velocity_firm_information or more
   };
   std::deque<HistoryEntry> history_;
   /// Running mean square per axis of the smoothed prediction's position error on frames whose
