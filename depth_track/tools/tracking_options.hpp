@@ -128,7 +128,8 @@ inline void addTrackingOptions(CLI::App& app, TrackingOptions& o) {
   app.add_option("--config", o.config_path,
                  "YAML file of tracker parameters (see config/tracker.yaml)");
   app.add_option("--initial-pose", o.initial_pose,
-                 "first pose 'tx ty tz qx qy qz qw' (default identity)");
+                 "first pose 'tx ty tz qx qy qz qw' (default identity; evaluate_bag: the "
+                 "bag's camera mount from /tf_static when it records one)");
   app.add_option("--map", o.map_path, "fuse the frames into a voxel map and save it here (.bt)");
   // Every tracker parameter, declared once in tracker_params.
   const TrackerConfig tracker_defaults;

@@ -510,7 +510,18 @@ int main(int argc, char** argv) {
                    topics.depth.c_str());
 
     // ---- the run ----
-    Tracker tracker(K, config, options.startPose());
+    // The start pose: --initial-pose, else the camera mount the bag records (base_link ->
+    // optical in /tf_static), where the graph's odometry starts too (REP 105: odom is base_link
+    // at the start), so the two compute in the same frame and print the same figures.
+    const bool mount_start = options.initial_pose.empty() && streams.T_base_optical.has_value();
+    const Eigen::Isometry3d T_W_C0 = mount_start ? *streams.T_base_optical : options.startPose();
+    report.line(options.initial_pose.empty()
+                    ? (mount_start ? "  start pose    the camera mount (base_link -> " + optical_frame +
+                                         " in /tf_static), as the graph's odometry"
+                                   : std::string("  start pose    identity (no camera mount in "
+                                                 "/tf_static)"))
+                    : "  start pose    --initial-pose " + options.initial_pose);
+    Tracker tracker(K, config, T_W_C0);
     std::unique_ptr<Mapper> mapper;
     if (options.mapWanted() || plots)
       mapper = std::make_unique<Mapper>(K, options.mapperConfig(), tracker.pose());
@@ -686,7 +697,7 @@ int main(int argc, char** argv) {
                  x.jitter_ms, x.gaps);
     }
     if (mapper) {
-      writeMapVoxels(out_dir + "/map_voxels.f32", mapper->map(), options.startPose());
+      writeMapVoxels(out_dir + "/map_voxels.f32", mapper->map(), T_W_C0);
       if (!options.map_path.empty()) mapper->save(options.map_path);
     }
     RunningStats frame_stats(std::max<std::size_t>(1, ms_frame.size()));
