@@ -53,6 +53,8 @@ std::vector<std::string> RegistrationConfig::validate() const {
   if (!(huber_delta_m > 0.0)) p.push_back("huber_delta_m must be > 0 m");
   if (!noise.valid()) p.push_back("noise: the depth-noise coefficients must be >= 0");
   if (!(noise_ref_depth_m >= 0.0)) p.push_back("noise_ref_depth_m must be >= 0 m (0 = off)");
+  if (!(noise_weighting_min >= 0.0 && noise_weighting_min <= 1.0))
+    p.push_back("noise_weighting_min must be in [0, 1] (0 = no floor)");
   if (min_matches < 6) p.push_back("min_matches must be >= 6 (six unknowns)");
   for (const auto& s : degeneracy.validate()) p.push_back(s);
   return p;
@@ -290,17 +292,21 @@ double huberWeight(double residual, const RegistrationConfig& config) {
 struct NoiseWeighting {
   bool on = false;
   DepthNoiseModel noise;
-  double z_ref = 0.0, sigma_ref = 0.0;
+  double z_ref = 0.0, sigma_ref = 0.0, min_factor = 0.0;
   explicit NoiseWeighting(const RegistrationConfig& config)
-      : noise(config.noise), z_ref(config.noise_ref_depth_m), sigma_ref(noise.sigmaAt(z_ref)) {
+      : noise(config.noise),
+        z_ref(config.noise_ref_depth_m),
+        sigma_ref(noise.sigmaAt(z_ref)),
+        min_factor(config.noise_weighting_min) {
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
-  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z: 1 when off or
-  // not deeper than z_ref. Its Huber threshold grows by sigma(z) / sigma(z_ref) = factor^-1/2.
+  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z, at least
+  // min_factor: 1 when off or not deeper than z_ref. Its Huber threshold grows by
+  // factor^-1/2 (sigma(z) / sigma(z_ref) above the floor).
   double factor(double z) const {
     if (!on || !(z > z_ref)) return 1.0;
     const double ratio = noise.sigmaAt(z) / sigma_ref;  // >= 1: sigma grows with depth
-    return 1.0 / (ratio * ratio);
+    return std::max(min_factor, 1.0 / (ratio * ratio));
   }
   // Huber weight of residual e whose pair has noise factor f (above), times f.
   double weight(double e, double f, const RegistrationConfig& config) const {

@@ -120,6 +120,10 @@ std::vector<ParamSpec> makeParams() {
   p.push_back(num("noise_weighting_depth", "m",
                   "... z_ref: nearer pairs weigh 1 (0 = every pair alike)",
                   [](TrackerConfig& c) -> double& { return c.registration.noise_ref_depth_m; }));
+  p.push_back(num("noise_weighting_min", "",
+                  "... the smallest weight factor a deep pair gets (1/32 = noise 5.7x the "
+                  "reference depth's; 0 = unbounded)",
+                  [](TrackerConfig& c) -> double& { return c.registration.noise_weighting_min; }));
   p.push_back(
       num("degeneracy_margin", "",
           "pose information below this many times its normal-noise floor counts as none; "

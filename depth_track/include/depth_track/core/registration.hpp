@@ -58,6 +58,14 @@ struct RegistrationConfig {
   /// Metres. Not the scene's depth: nearer pairs are not weighed up, as the near range of a
   /// stereo or structured-light sensor is not as much better as the quadratic model says.
   double noise_ref_depth_m = 1.0;
+  /// The smallest weight factor a pair is given (1/32: no pair counts less than one whose noise
+  /// is 5.7 times the reference depth's). The inverse variance alone weighs a D435's pairs at
+  /// 5 m 1/625 of those at 1 m; what the deep pairs alone fix (the motion along a corridor, seen
+  /// on its door frames and far end) then loses to the near pairs' systematic normal tilts,
+  /// which pull the estimate to the guess and which the degeneracy floors do not see: the
+  /// rendered Hall1 corridor with D435 noise stood still while the camera walked 4.8 m
+  /// (docs/tracking.md "The weighting's floor"). 0 = the inverse variance unbounded.
+  double noise_weighting_min = 0.03125;
   bool overlap_mask = true;     ///< drop cells predicted to fall outside the other view
   int min_matches = 30;         ///< fewer pairs than this = failure
   /// Directions of the pose the pairs do not constrain keep the initial guess (P2L, Cell Search).
