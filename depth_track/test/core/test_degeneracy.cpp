@@ -327,6 +327,17 @@ TEST(WallSlideD435Firm, RejectsANegativeThreshold) {
 
 INSTANTIATE_TEST_SUITE_P(Seeds, WallSlideD435, ::testing::Values(1, 2, 3));
 
+TEST(CorridorD435, WeightingFloorIsValidated) {
+  RegistrationConfig c;
+  EXPECT_TRUE(c.validate().empty());
+  for (const double bad : {-0.1, 1.5, std::nan("")}) {
+    c.noise_weighting_min = bad;
+    EXPECT_FALSE(c.validate().empty()) << bad;
+  }
+  c.noise_weighting_min = 0.0;  // unbounded: allowed
+  EXPECT_TRUE(c.validate().empty());
+}
+
 // The rendered Hall1 corridor (8 m straight at 0.3 m/s) with D435 noise, seed 1. What fixes the
 // motion along it lies deep (door frames, and the far end once within 4 m), and D435 noise grows
 // with z^2: the inverse-variance weights alone put those pairs at 1/81-1/625 of the near walls',
