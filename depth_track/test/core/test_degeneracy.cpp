@@ -327,7 +327,7 @@ TEST(WallSlideD435Firm, RejectsANegativeThreshold) {
 
 INSTANTIATE_TEST_SUITE_P(Seeds, WallSlideD435, ::testing::Values(1, 2, 3));
 
-TEST(CorridorD435, WeightingFloorIsValidated) {
+TEST(NoiseWeightingFloor, IsValidated) {
   RegistrationConfig c;
   EXPECT_TRUE(c.validate().empty());
   for (const double bad : {-0.1, 1.5, std::nan("")}) {
@@ -336,35 +336,4 @@ TEST(CorridorD435, WeightingFloorIsValidated) {
   }
   c.noise_weighting_min = 0.0;  // unbounded: allowed
   EXPECT_TRUE(c.validate().empty());
-}
-
-// The rendered Hall1 corridor (8 m straight at 0.3 m/s) with D435 noise, seed 1. What fixes the
-// motion along it lies deep (door frames, and the far end once within 4 m), and D435 noise grows
-// with z^2: the inverse-variance weights alone put those pairs at 1/81-1/625 of the near walls',
-// whose systematic normal tilts then pull every frame back to the guess. With the weighting
-// unbounded (noise_weighting_min 0) the estimate stood still for the first 4.8 m and ended
-// 4.9 m short; the defaults (weights at least 1/32) end within centimetres.
-TEST(CorridorD435, WalksTheCorridor) {
-  const sim::RenderedRun run = sim::makeRun("hall1");
-  const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kD435);
-  Tracker tracker(run.intrinsics, TrackerConfig{});
-  std::vector<Eigen::Isometry3d> est;
-  int tracked = 0;
-  for (std::size_t i = 0; i < run.size(); ++i) {
-    const FrameStatus st = tracker.track(run.renderFrame(i, noise, 1), run.stamps_s[i]);
-    tracked += st.tracked;
-    est.push_back(st.T_W_C);
-  }
-  const Eigen::Isometry3d align = run.T_W_C[0] * est[0].inverse();
-  double worst = 0.0;
-  for (std::size_t i = 0; i < run.size(); ++i)
-    worst = std::max(worst,
-                     ((align * est[i]).translation() - run.T_W_C[i].translation()).norm());
-  const double travel = (est.back().translation() - est.front().translation()).norm();
-  const double truth = (run.T_W_C.back().translation() - run.T_W_C.front().translation()).norm();
-  std::printf("hall1 D435 seed 1: travelled %.3f m of %.3f m, largest position error %.1f mm\n",
-              travel, truth, 1e3 * worst);
-  EXPECT_EQ(tracked, static_cast<int>(run.size()));
-  EXPECT_NEAR(travel, truth, 0.05 * truth);
-  EXPECT_LT(worst, 0.1);
 }

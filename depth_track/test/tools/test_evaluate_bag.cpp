@@ -13,6 +13,7 @@
 #include <sensor_msgs/Image.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -24,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "../shared_data.hpp"
 #include "tool_test.hpp"
@@ -430,11 +432,15 @@ TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
   // camera_link at the origin, then the optical axes), as the graph does; track_sequence is
   // started at the same pose.
   EXPECT_NE(r.output.find("start pose    the camera mount"), std::string::npos) << r.output;
+  const Eigen::Quaterniond mount(rotationBodyFromOptical());
+  char initial_pose[160];
+  std::snprintf(initial_pose, sizeof initial_pose, "'0 0 0 %.17g %.17g %.17g %.17g'", mount.x(),
+                mount.y(), mount.z(), mount.w());
   const std::string ts = out.path + "/ts.txt";
   r = tool_test::runTool(TRACK_SEQUENCE,
                          "--tum " + teddy +
                              " --fx 535.4 --fy 539.2 --cx 320.1 --cy 247.6 --config " + preset +
-                             " --initial-pose '0 0 0 -0.5 0.5 -0.5 0.5' --out " + ts,
+                             " --initial-pose " + initial_pose + " --out " + ts,
                          out.path);
   ASSERT_EQ(r.rc, 0) << r.output;
   const Trajectory a = readTumTrajectory(out.path + "/trajectory.txt"), b = readTumTrajectory(ts);

@@ -515,12 +515,13 @@ int main(int argc, char** argv) {
     // at the start), so the two compute in the same frame and print the same figures.
     const bool mount_start = options.initial_pose.empty() && streams.T_base_optical.has_value();
     const Eigen::Isometry3d T_W_C0 = mount_start ? *streams.T_base_optical : options.startPose();
-    report.line(options.initial_pose.empty()
-                    ? (mount_start ? "  start pose    the camera mount (base_link -> " + optical_frame +
-                                         " in /tf_static), as the graph's odometry"
-                                   : std::string("  start pose    identity (no camera mount in "
-                                                 "/tf_static)"))
-                    : "  start pose    --initial-pose " + options.initial_pose);
+    if (!options.initial_pose.empty())
+      report.line("  start pose    --initial-pose " + options.initial_pose);
+    else if (mount_start)
+      report.line("  start pose    the camera mount (base_link -> " + optical_frame +
+                  " in /tf_static), as the graph's odometry");
+    else
+      report.line("  start pose    identity (no camera mount in /tf_static)");
     Tracker tracker(K, config, T_W_C0);
     std::unique_ptr<Mapper> mapper;
     if (options.mapWanted() || plots)
