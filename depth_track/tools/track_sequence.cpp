@@ -307,6 +307,15 @@ int main(int argc, char** argv) {
           vm.memoryBytes() / 1e6, vm.memoryBytes() / occ, vm.octreeMemoryBytes() / 1e6,
           vm.octreeMemoryBytes() / occ,
           options.map_path.empty() ? " (octree not flushed: no --map)" : "");
+      const LoopCloser* lc = mapper->loopCloser();
+      if (lc && lc->layer()) {
+        const SurfaceModel& layer = *lc->layer();
+        std::printf(
+            "loop-closure layer: voxel=%.3f m voxels=%zu MB=%.1f (%.1f B per voxel) "
+            "pending_MB=%.1f observe_median_ms=%.2f\n",
+            layer.config().voxel_m, layer.voxelCount(), layer.memoryBytes() / 1e6,
+            layer.bytesPerVoxel(), lc->pendingBytes() / 1e6, lc->observeTiming().median());
+      }
     }
     std::printf("frames=%zu tracked=%d median_ms=%.2f p95_ms=%.2f%s\n", n, tracked, ms.median(),
                 ms.p95(), mapper ? (" " + mapper->summary()).c_str() : "");

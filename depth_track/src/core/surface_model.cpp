@@ -196,8 +196,10 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
 }
 
 CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
-                               ModelRefineStats* stats) const {
+                               ModelRefineStats* stats,
+                               std::vector<std::uint8_t>* took_model) const {
   CellCloud out = cells;
+  if (took_model) took_model->assign(cells.cells.size(), 0);
   ModelRefineStats s;
   s.cells = static_cast<int>(cells.cells.size());
   const Eigen::Matrix3f R = T_W_C.rotation().cast<float>();
@@ -209,7 +211,8 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
   const bool noise_known = config_.noise.known();
   const float voxel = static_cast<float>(config_.voxel_m);
   double sum_sq = 0.0;
-  for (Cell& c : out.cells) {
+  for (std::size_t i = 0; i < out.cells.size(); ++i) {
+    Cell& c = out.cells[i];
     const Eigen::Vector3f p = R * c.mean_C + t;
     const Eigen::Vector3f n_cell = R * c.normal_C;
     const float z = c.mean_C.z();
@@ -257,6 +260,7 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
     }
     c.mean_C *= n.dot(m) / denom;
     c.normal_C = n;
+    if (took_model) (*took_model)[i] = 1;
     ++s.refined;
     sum_sq += static_cast<double>(offset) * offset;
   }

@@ -70,8 +70,10 @@ class SurfaceModel {
   void integrate(const CellCloud& cells, const Eigen::Isometry3d& T_W_C);
   /// A copy of `cells` (camera frame, seen from T_W_C) with the model's plane in place of each
   /// cell's own where the model is confident and agrees (SurfaceModelConfig gates).
+  /// `took_model`, when given, gets one flag per cell: 1 where the cell took the model's plane.
   CellCloud refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
-                   ModelRefineStats* stats = nullptr) const;
+                   ModelRefineStats* stats = nullptr,
+                   std::vector<std::uint8_t>* took_model = nullptr) const;
   void clear();
   /// Drops every voxel whose mean lies farther than radius_m from centre_W (world, metres) and
   /// shrinks the table to what is left. Returns the number dropped.

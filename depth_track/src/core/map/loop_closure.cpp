@@ -30,7 +30,31 @@ void dropGrazingCells(CellCloud& c, double min_cos) {
   }
   c.cells.swap(kept);
 }
+// Keeps the cells flagged in `keep`, rebuilding the grid lookup.
+void keepFlagged(CellCloud& c, const std::vector<std::uint8_t>& keep) {
+  std::vector<Cell> kept;
+  kept.reserve(c.cells.size());
+  std::fill(c.grid_index.begin(), c.grid_index.end(), -1);
+  for (std::size_t i = 0; i < c.cells.size(); ++i) {
+    if (!keep[i]) continue;
+    const Cell& cell = c.cells[i];
+    c.grid_index[static_cast<std::size_t>(cell.gy) * c.grid_w + cell.gx] =
+        static_cast<int>(kept.size());
+    kept.push_back(cell);
+  }
+  c.cells.swap(kept);
+}
 }  // namespace
+
+LoopReference parseLoopReference(const std::string& name) {
+  if (name == "raycast") return LoopReference::kRaycast;
+  if (name == "surface") return LoopReference::kSurface;
+  throw std::invalid_argument("unknown loop-closure reference '" + name +
+                              "' (expected raycast or surface)");
+}
+std::string toString(LoopReference reference) {
+  return reference == LoopReference::kSurface ? "surface" : "raycast";
+}
 
 PinholeIntrinsics downsampledIntrinsics(const PinholeIntrinsics& K, int factor) {
   if (factor < 1 || K.width % factor != 0 || K.height % factor != 0)
@@ -102,6 +126,10 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   if (!(max_correction_deg > 0.0)) p.push_back("max_correction_deg must be > 0 deg");
   if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
   if (min_model_age_frames < 0) p.push_back("min_model_age_frames must be >= 0");
+  if (reference == LoopReference::kSurface) {
+    if (surface_rounds < 1) p.push_back("surface_rounds must be >= 1");
+    for (const auto& s : surface.validate()) p.push_back("surface: " + s);
+  }
   if (!(deadband_m >= 0.0) || !(deadband_deg >= 0.0))
     p.push_back("deadband_m and deadband_deg must be >= 0");
   return p;
@@ -124,12 +152,162 @@ LoopCloser::LoopCloser(const VoxelMap& map, const PinholeIntrinsics& intrinsics,
                            ? intrinsics
                            : downsampledIntrinsics(intrinsics, config.raycast_downsample)),
       config_(config),
-      caster_(map, cast_intrinsics_, range) {}
+      caster_(map, cast_intrinsics_, range) {
+  if (config_.reference == LoopReference::kSurface)
+    layer_ = std::make_unique<SurfaceModel>(config_.surface);
+}
 
 LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
                             const PinholeIntrinsics& intrinsics, const DepthRange& range,
                             const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config) {
   return LoopCloser(map, intrinsics, range, config).attempt(current, 0.0, T_W_C_pred);
+}
+
+CellCloud LoopCloser::reduceFrame(const DepthImage& current) const {
+  const int f = config_.raycast_downsample;
+  PcaConfig pca = config_.pca;
+  pca.cell_size /= f;
+  CellCloud cur = f == 1 ? reduceToCells(current, cast_intrinsics_, pca)
+                         : reduceToCells(downsampleDepth(current, f), cast_intrinsics_, pca);
+  dropGrazingCells(cur, config_.min_incidence_cos);
+  return cur;
+}
+
+void LoopCloser::observe(const DepthImage& depth, const Eigen::Isometry3d& T_W_C) {
+  if (!layer_) return;
+  checkFrameSize(depth, intrinsics_);
+  if (!T_W_C.matrix().allFinite())
+    throw std::invalid_argument("loop closure: observed pose T_W_C is not finite");
+  const auto t0 = std::chrono::steady_clock::now();
+  const CellCloud cells = reduceFrame(depth);
+  PendingFrame f;
+  f.T_W_C = T_W_C;
+  f.means.reserve(cells.cells.size());
+  f.normals.reserve(cells.cells.size());
+  for (const Cell& c : cells.cells) {
+    f.means.push_back(c.mean_C);
+    f.normals.push_back(c.normal_C);
+  }
+  pending_.push_back(std::move(f));
+  // A frame joins the layer once it is as old as the ray cast's model (min_model_age_frames):
+  // registering against what the last frames just added would only echo their poses.
+  while (static_cast<int>(pending_.size()) > config_.min_model_age_frames) {
+    const PendingFrame& old = pending_.front();
+    scratch_.cells.resize(old.means.size());
+    for (std::size_t i = 0; i < old.means.size(); ++i) {
+      scratch_.cells[i].mean_C = old.means[i];
+      scratch_.cells[i].normal_C = old.normals[i];
+    }
+    layer_->integrate(scratch_, old.T_W_C);
+    pending_.pop_front();
+  }
+  observe_timing_.add(msSince(t0));
+}
+
+std::size_t LoopCloser::pendingBytes() const {
+  std::size_t bytes = 0;
+  for (const PendingFrame& f : pending_)
+    bytes += (f.means.capacity() + f.normals.capacity()) * sizeof(Eigen::Vector3f);
+  return bytes;
+}
+
+std::string LoopCloser::castModel(const Eigen::Isometry3d& T_W_C, LoopClosureResult& r,
+                                  CellCloud& model) {
+  auto t0 = std::chrono::steady_clock::now();
+  const DepthImage virt = caster_.cast(T_W_C, config_.min_model_age_frames);
+  r.ms_raycast += msSince(t0);
+  r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
+  std::ostringstream why;
+  if (r.model_fraction < config_.min_model_fraction) {
+    why << "model too sparse: virtual image has returns on " << 100.0 * r.model_fraction
+        << " % of pixels (< " << 100.0 * config_.min_model_fraction << " %)";
+    return why.str();
+  }
+  t0 = std::chrono::steady_clock::now();
+  PcaConfig pca = config_.pca;
+  pca.cell_size /= config_.raycast_downsample;
+  model = reduceToCells(virt, cast_intrinsics_, pca);
+  dropGrazingCells(model, config_.min_incidence_cos);
+  r.ms_reduce += msSince(t0);
+  r.model_cells = static_cast<int>(model.cells.size());
+  if (r.model_cells < config_.min_model_cells) {
+    why << "model too sparse: " << r.model_cells << " cells in the virtual image (< "
+        << config_.min_model_cells << ")";
+  }
+  return why.str();
+}
+
+std::string LoopCloser::layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C,
+                                   LoopClosureResult& r, CellCloud& model) const {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<std::uint8_t> took;
+  ModelRefineStats st;
+  model = layer_->refine(cur, T_W_C, &st, &took);
+  keepFlagged(model, took);
+  r.ms_reduce += msSince(t0);
+  r.model_fraction = cur.cells.empty() ? 0.0 : static_cast<double>(st.refined) / cur.cells.size();
+  r.model_cells = static_cast<int>(model.cells.size());
+  std::ostringstream why;
+  if (r.model_fraction < config_.min_model_fraction) {
+    why << "model too sparse: the surface layer holds " << 100.0 * r.model_fraction
+        << " % of the frame's cells (< " << 100.0 * config_.min_model_fraction << " %)";
+  } else if (r.model_cells < config_.min_model_cells) {
+    why << "model too sparse: " << r.model_cells << " cells in the surface layer (< "
+        << config_.min_model_cells << ")";
+  }
+  return why.str();
+}
+
+std::string LoopCloser::registerOnto(const CellCloud& model, const CellCloud& cur,
+                                     LoopClosureResult& r, RegistrationResult& res) const {
+  std::ostringstream why;
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const Cell& c : model.cells) {
+    const Eigen::Vector3d n = c.normal_C.cast<double>();
+    scatter += n * n.transpose();
+  }
+  scatter /= static_cast<double>(model.cells.size());
+  r.normal_spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues()(0);
+  if (r.normal_spread < config_.min_normal_spread) {
+    why << "degenerate view: normal spread " << r.normal_spread << " (< "
+        << config_.min_normal_spread << "), a translation along the surfaces is unconstrained";
+    return why.str();
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  RegistrationConfig reg = config_.registration;
+  reg.min_matches = std::min(reg.min_matches, config_.min_matches);
+  // The guess is the odometry's pose, whose error against the map is the drift this step is
+  // there to remove (up to the correction gate), not the tracker's per-frame motion prior: weighed
+  // against that (2 mm), each correction stopped short and closed only part of the drift. The
+  // directions the model does not fix at all still keep the odometry's pose.
+  reg.degeneracy.prior_sigma_m = std::max(config_.max_correction_m, reg.degeneracy.prior_sigma_m);
+  res = registerCells(model, cur, cast_intrinsics_, Eigen::Isometry3d::Identity(), reg);
+  r.ms_register += msSince(t0);
+  r.matches = res.matches;
+  r.error_rms_m = res.error_rms_m;
+  if (res.matches < config_.min_matches) {
+    why << "too few matches: " << res.matches << " cell pairs (< " << config_.min_matches << ")";
+  } else if (!res.failure.empty()) {
+    why << "registration failed: " << res.failure;
+  } else if (!res.T_ref_cur.matrix().allFinite()) {
+    why << "registration gave a non-finite correction";
+  }
+  return why.str();
+}
+
+std::string LoopCloser::plausible(const Eigen::Isometry3d& correction, LoopClosureResult& r) const {
+  r.correction_m = correction.translation().norm();
+  r.correction_deg = rotationAngle(correction) * kRadToDeg;
+  std::ostringstream why;
+  if (r.correction_m > config_.max_correction_m || r.correction_deg > config_.max_correction_deg) {
+    why << "correction too large: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg
+        << " deg (bounds " << 1000.0 * config_.max_correction_m << " mm, "
+        << config_.max_correction_deg << " deg)";
+  } else if (r.error_rms_m > config_.max_error_rms_m) {
+    why << "poor fit: residual RMS " << 1000.0 * r.error_rms_m << " mm (> "
+        << 1000.0 * config_.max_error_rms_m << " mm)";
+  }
+  return why.str();
 }
 
 LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
@@ -141,9 +319,6 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
   if (!T_M_O.matrix().allFinite())
     throw std::invalid_argument("loop closure: map -> odom correction T_M_O is not finite");
   checkFrameSize(current, intrinsics_);
-  const LoopClosureConfig& config = config_;
-  const PinholeIntrinsics& K = cast_intrinsics_;
-  const int f = config.raycast_downsample;
   const Eigen::Isometry3d T_W_C_pred = T_M_O * T_O_C;
 
   LoopClosureResult r;
@@ -156,90 +331,60 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
     ~Timer() { stats.add(msSince(t0)); }
   } timer{timing_, t_attempt};
   auto t0 = std::chrono::steady_clock::now();
-  const DepthImage virt = caster_.cast(T_W_C_pred, config.min_model_age_frames);
-  r.ms_raycast = msSince(t0);
-  r.model_fraction = static_cast<double>(virt.countValid()) / virt.data.size();
-  std::ostringstream why;
-  if (r.model_fraction < config.min_model_fraction) {
-    why << "model too sparse: virtual image has returns on " << 100.0 * r.model_fraction
-        << " % of pixels (< " << 100.0 * config.min_model_fraction << " %)";
-    r.reason = why.str();
-    return r;
-  }
-  t0 = std::chrono::steady_clock::now();
-  PcaConfig pca = config.pca;
-  pca.cell_size /= f;
-  CellCloud model = reduceToCells(virt, K, pca);
-  CellCloud cur =
-      f == 1 ? reduceToCells(current, K, pca) : reduceToCells(downsampleDepth(current, f), K, pca);
-  dropGrazingCells(model, config.min_incidence_cos);
-  dropGrazingCells(cur, config.min_incidence_cos);
+  const CellCloud cur = reduceFrame(current);
   r.ms_reduce = msSince(t0);
-  r.model_cells = static_cast<int>(model.cells.size());
   r.current_cells = static_cast<int>(cur.cells.size());
-  if (r.model_cells < config.min_model_cells) {
-    why << "model too sparse: " << r.model_cells << " cells in the virtual image (< "
-        << config.min_model_cells << ")";
-    r.reason = why.str();
+
+  // The correction maps the current camera into the model's camera at the prediction.
+  Eigen::Isometry3d correction = Eigen::Isometry3d::Identity();
+  std::string why;
+  if (!layer_ || config_.surface_after_raycast) {
+    CellCloud model;
+    RegistrationResult res;
+    why = castModel(T_W_C_pred, r, model);
+    if (why.empty()) why = registerOnto(model, cur, r, res);
+    if (why.empty()) why = plausible(res.T_ref_cur, r);
+    if (why.empty()) correction = res.T_ref_cur;
+    if (!why.empty() && !layer_) {
+      r.reason = why;
+      return r;
+    }
+  }
+  if (layer_) {
+    // The layer's planes are taken again at the corrected pose on each round: the pairs follow
+    // the correction, within the layer's offset gate of the plane.
+    for (int round = 0; round < config_.surface_rounds; ++round) {
+      CellCloud model;
+      RegistrationResult res;
+      why = layerModel(cur, T_W_C_pred * correction, r, model);
+      if (why.empty()) why = registerOnto(model, cur, r, res);
+      if (!why.empty()) {
+        r.reason = why;
+        return r;
+      }
+      correction = correction * res.T_ref_cur;
+    }
+    why = plausible(correction, r);
+    if (!why.empty()) {
+      r.reason = why;
+      return r;
+    }
+  }
+  if (r.correction_m < config_.deadband_m && r.correction_deg < config_.deadband_deg) {
+    std::ostringstream o;
+    o << "correction below the map's resolution: " << 1000.0 * r.correction_m << " mm, "
+      << r.correction_deg << " deg (dead band " << 1000.0 * config_.deadband_m << " mm, "
+      << config_.deadband_deg << " deg); not applied";
+    r.reason = o.str();
     return r;
   }
-  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-  for (const Cell& c : model.cells) {
-    const Eigen::Vector3d n = c.normal_C.cast<double>();
-    scatter += n * n.transpose();
-  }
-  scatter /= static_cast<double>(model.cells.size());
-  r.normal_spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues()(0);
-  if (r.normal_spread < config.min_normal_spread) {
-    why << "degenerate view: normal spread " << r.normal_spread << " (< "
-        << config.min_normal_spread << "), a translation along the surfaces is unconstrained";
-    r.reason = why.str();
-    return r;
-  }
-  t0 = std::chrono::steady_clock::now();
-  RegistrationConfig reg = config.registration;
-  reg.min_matches = std::min(reg.min_matches, config.min_matches);
-  // The guess is the odometry's pose, whose error against the map is the drift this step is
-  // there to remove (up to the correction gate), not the tracker's per-frame motion prior: weighed
-  // against that (2 mm), each correction stopped short and closed only part of the drift. The
-  // directions the model does not fix at all still keep the odometry's pose.
-  reg.degeneracy.prior_sigma_m = std::max(config.max_correction_m, reg.degeneracy.prior_sigma_m);
-  const RegistrationResult res = registerCells(model, cur, K, Eigen::Isometry3d::Identity(), reg);
-  r.ms_register = msSince(t0);
-  r.matches = res.matches;
-  r.error_rms_m = res.error_rms_m;
-  r.correction_m = res.T_ref_cur.translation().norm();
-  r.correction_deg = rotationAngle(res.T_ref_cur) * kRadToDeg;
-  if (res.matches < config.min_matches) {
-    why << "too few matches: " << res.matches << " cell pairs (< " << config.min_matches << ")";
-  } else if (!res.failure.empty()) {
-    why << "registration failed: " << res.failure;
-  } else if (!res.T_ref_cur.matrix().allFinite()) {
-    why << "registration gave a non-finite correction";
-  } else if (r.correction_m > config.max_correction_m ||
-             r.correction_deg > config.max_correction_deg) {
-    why << "correction too large: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg
-        << " deg (bounds " << 1000.0 * config.max_correction_m << " mm, "
-        << config.max_correction_deg << " deg)";
-  } else if (r.error_rms_m > config.max_error_rms_m) {
-    why << "poor fit: residual RMS " << 1000.0 * r.error_rms_m << " mm (> "
-        << 1000.0 * config.max_error_rms_m << " mm)";
-  } else if (r.correction_m < config.deadband_m && r.correction_deg < config.deadband_deg) {
-    why << "correction below the map's resolution: " << 1000.0 * r.correction_m << " mm, "
-        << r.correction_deg << " deg (dead band " << 1000.0 * config.deadband_m << " mm, "
-        << config.deadband_deg << " deg); not applied";
-  }
-  if (!why.str().empty()) {
-    r.reason = why.str();
-    return r;
-  }
-  // T_ref_cur maps the current camera into the virtual camera at the prediction.
-  r.T_W_C = orthonormalized(T_W_C_pred * res.T_ref_cur);
+  r.T_W_C = orthonormalized(T_W_C_pred * correction);
   r.correction.T_M_O = orthonormalized(r.T_W_C * T_O_C.inverse());
   r.accepted = true;
-  why << "accepted: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg << " deg, "
-      << r.matches << " pairs, residual " << 1000.0 * r.error_rms_m << " mm";
-  r.reason = why.str();
+  std::ostringstream o;
+  o << "accepted: " << 1000.0 * r.correction_m << " mm, " << r.correction_deg << " deg, "
+    << r.matches << " pairs, residual " << 1000.0 * r.error_rms_m << " mm";
+  r.reason = o.str();
   return r;
 }
 

@@ -74,6 +74,7 @@ MapperFrame Mapper::step(const DepthImage& depth, double stamp_s, const Eigen::I
     }
   }
   out.fuse = fuse(depth, out.T_W_C);
+  if (loop_) loop_->observe(depth, out.T_W_C);
   return out;
 }
 
@@ -86,9 +87,11 @@ DepthImage Mapper::raycast(const Eigen::Isometry3d& T_W_C) {
 void Mapper::save(const std::string& path) { map_.save(path); }
 
 std::string Mapper::summary() const {
-  char buf[160];
-  std::snprintf(buf, sizeof(buf), "fuse_median_ms=%.2f raycast_median_ms=%.2f loop_closures=%d/%d",
-                fuseMedianMs(), raycastMedianMs(), loop_accepted_, loop_attempts_);
+  char buf[200];
+  std::snprintf(buf, sizeof(buf),
+                "fuse_median_ms=%.2f raycast_median_ms=%.2f loop_median_ms=%.2f loop_closures=%d/%d",
+                fuseMedianMs(), raycastMedianMs(), loop_ ? loop_->timing().median() : 0.0,
+                loop_accepted_, loop_attempts_);
   return buf;
 }
 

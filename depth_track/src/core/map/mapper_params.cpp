@@ -55,6 +55,17 @@ std::vector<MapperParamSpec> makeParams() {
                   [](MapperConfig& c) -> bool& { return c.loop.enabled; }));
   p.push_back(num("cl_step", "frames", "loop-closure attempt every n-th frame (CLStep)",
                   [](MapperConfig& c) -> int& { return c.loop.cl_step; }));
+  p.push_back({"cl_reference", "",
+               "what loop closure registers against: raycast (a virtual image of the occupancy "
+               "map) | surface (a mean-surface layer of the frames fused cl_min_model_age ago)",
+               [](const MapperConfig& c) { return toString(c.loop.reference); },
+               [](MapperConfig& c, const std::string& v) {
+                 c.loop.reference = parseLoopReference(v);
+               }});
+  p.push_back(num("cl_surface_after_raycast", "",
+                  "cl_reference surface: start from the ray cast's correction when it passes "
+                  "its gates (reaches drift beyond the layer's 3 cm): on | off",
+                  [](MapperConfig& c) -> bool& { return c.loop.surface_after_raycast; }));
   p.push_back(num("cl_downsample", "", "ray-cast the virtual image at 1/n resolution: 1 | 2",
                   [](MapperConfig& c) -> int& { return c.loop.raycast_downsample; }));
   p.push_back(num("cl_min_model_age", "frames",

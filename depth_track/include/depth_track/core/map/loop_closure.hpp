@@ -4,6 +4,8 @@
 /// cells onto them and correct the pose, with gates that reject a correction the map cannot
 /// support. ROS-free core.
 #include <Eigen/Geometry>
+#include <deque>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -13,8 +15,17 @@
 #include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/registration.hpp"
 #include "depth_track/core/running_stats.hpp"
+#include "depth_track/core/surface_model.hpp"
 
 namespace depth_track {
+
+/// What a loop-closure attempt registers the current frame against.
+enum class LoopReference {
+  kRaycast,  ///< a virtual depth image ray-cast from the occupancy map (thesis)
+  kSurface,  ///< the loop closer's own mean-surface layer of the frames fused long enough ago
+};
+LoopReference parseLoopReference(const std::string& name);
+std::string toString(LoopReference reference);
 
 /// Configuration of the loop-closure step (thesis fig. 5.1 names in brackets).
 struct LoopClosureConfig {
@@ -68,6 +79,25 @@ struct LoopClosureConfig {
   double max_correction_m = 0.05;
   double max_correction_deg = 3.0;
   double max_error_rms_m = 0.015;  ///< residual RMS above this = poor fit, metres
+  /// What the frame is registered against (see LoopReference). With kSurface every fused frame
+  /// is reduced to cells (observe()) and, once min_model_age_frames old, averaged into `surface`:
+  /// a mean-surface layer in the map frame, whose planes average the sensor's noise where the
+  /// occupancy map's ray cast returns the near side of a shell of stray hits.
+  LoopReference reference = LoopReference::kRaycast;
+  /// The layer (kSurface): 1 cm voxels, kept whole (no radius), and a cell within 3 cm of a
+  /// plane takes it (the reach of a correction per round).
+  SurfaceModelConfig surface = [] {
+    SurfaceModelConfig c;
+    c.keep_radius_m = 0.0;
+    c.max_offset_m = 0.03;
+    return c;
+  }();
+  /// kSurface: registrations against the layer, its planes taken again at the corrected pose.
+  int surface_rounds = 2;
+  /// kSurface: start the layer's rounds from the ray cast's correction when that passes its
+  /// gates (the cast reaches drift beyond the layer's offset gate; the layer then removes the
+  /// cast's bias), else from the prediction.
+  bool surface_after_raycast = false;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate(const PinholeIntrinsics& intrinsics) const;
@@ -119,16 +149,49 @@ class LoopCloser {
                             const Eigen::Isometry3d& T_O_C,
                             const Eigen::Isometry3d& T_M_O = Eigen::Isometry3d::Identity());
 
+  /// Every fused frame at its map-frame pose (reference kSurface: feeds the mean-surface layer
+  /// once the frame is min_model_age_frames old; nothing for kRaycast).
+  void observe(const DepthImage& depth, const Eigen::Isometry3d& T_W_C);
+
   const LoopClosureConfig& config() const { return config_; }
   /// ms per attempt (ray cast, reductions and registration).
   const RunningStats& timing() const { return timing_; }
+  /// ms per observe() call (reduction of the frame, and integration of the one leaving the queue).
+  const RunningStats& observeTiming() const { return observe_timing_; }
+  /// The mean-surface layer (reference kSurface), else null.
+  const SurfaceModel* layer() const { return layer_.get(); }
+  /// Bytes of the frames waiting to join the layer (their cells).
+  std::size_t pendingBytes() const;
 
  private:
   PinholeIntrinsics intrinsics_;       ///< the camera's
   PinholeIntrinsics cast_intrinsics_;  ///< of the virtual image (downsampled)
   LoopClosureConfig config_;
   MapRayCaster caster_;
-  RunningStats timing_;
+  RunningStats timing_, observe_timing_;
+  std::unique_ptr<SurfaceModel> layer_;  ///< reference kSurface
+  /// Frames observed but not yet min_model_age_frames old: their cells' means and normals (all
+  /// the layer reads) and map-frame poses.
+  struct PendingFrame {
+    std::vector<Eigen::Vector3f> means, normals;  ///< the frame's cells, camera frame
+    Eigen::Isometry3d T_W_C;
+  };
+  std::deque<PendingFrame> pending_;
+  CellCloud scratch_;  ///< a pending frame's cells as integrate() takes them
+
+  /// The frame at the cast resolution, reduced with config.pca (grazing cells left out).
+  CellCloud reduceFrame(const DepthImage& current) const;
+  // Each stage fills its fields of `r` and returns why the attempt stops there (empty: go on).
+  /// The ray cast at T_W_C reduced to cells (kRaycast's model).
+  std::string castModel(const Eigen::Isometry3d& T_W_C, LoopClosureResult& r, CellCloud& model);
+  /// The current cells that lie on a confident plane of the layer seen from T_W_C, moved onto it.
+  std::string layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C,
+                         LoopClosureResult& r, CellCloud& model) const;
+  /// The normal-spread gate, then `cur` registered onto `model` from the identity.
+  std::string registerOnto(const CellCloud& model, const CellCloud& cur, LoopClosureResult& r,
+                           RegistrationResult& res) const;
+  /// The size and residual gates of a correction.
+  std::string plausible(const Eigen::Isometry3d& correction, LoopClosureResult& r) const;
 };
 
 /// One loop-closure attempt for the current full-resolution frame `current` (metres) predicted at

@@ -81,7 +81,10 @@ class Mapper {
   /// ms per fuse call and per ray cast (loop closure's and raycast()'s).
   const RunningStats& fuseTiming() const { return fuse_ms_; }
   const RunningStats& raycastTiming() const { return raycast_ms_; }
-  /// "fuse_median_ms=X raycast_median_ms=Y loop_closures=A/B" (accepted/attempted).
+  /// The loop-closure stage (loop closure enabled), else null.
+  const LoopCloser* loopCloser() const { return loop_.get(); }
+  /// "fuse_median_ms=X raycast_median_ms=Y loop_median_ms=Z loop_closures=A/B" (Z: median ms
+  /// per attempt; A/B accepted/attempted).
   std::string summary() const;
 
  private:
