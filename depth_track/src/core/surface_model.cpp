@@ -21,7 +21,8 @@ constexpr int kFirstBits = 16;
 
 std::vector<std::string> SurfaceModelConfig::validate() const {
   std::vector<std::string> p;
-  if (!(voxel_m >= 0.002 && voxel_m <= 0.5)) p.push_back("model.voxel_m must lie in [0.002, 0.5] m");
+  if (!(voxel_m >= 0.002 && voxel_m <= 0.5))
+    p.push_back("model.voxel_m must lie in [0.002, 0.5] m");
   if (max_weight < 1 || max_weight > 60000) p.push_back("model.max_weight must lie in [1, 60000]");
   if (min_weight < 1) p.push_back("model.min_weight must be >= 1");
   if (!(max_offset_m > 0.0)) p.push_back("model.max_offset_m must be > 0 m");

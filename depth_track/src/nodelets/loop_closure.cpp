@@ -98,6 +98,7 @@ class LoopClosureNodelet : public nodelet::Nodelet {
       d.summary(diagnostic_msgs::DiagnosticStatus::OK,
                 (last_accepted_ ? "accepted: " : "rejected: ") + last_reason_);
     d.add("every n frames", config_.loop.cl_step);
+    d.add("reference", toString(config_.loop.reference));
     d.add("attempts", attempts_);
     d.add("accepted", accepted_);
     d.add("rejected in a row", rejected_in_a_row_);
@@ -136,23 +137,31 @@ class LoopClosureNodelet : public nodelet::Nodelet {
       const double prev = last_stamp_;
       last_stamp_ = stamp;
       ++frames_;
-      if (f.status->tracked && frames_ % config_.loop.cl_step == 0) {
+      const bool attempt = f.status->tracked && frames_ % config_.loop.cl_step == 0;
+      // The surface layer (cl_reference surface) takes every tracked frame at its map pose.
+      const bool observe = f.status->tracked && config_.loop.reference == LoopReference::kSurface;
+      std::optional<DepthImage> depth;
+      Eigen::Isometry3d T_odom_C = Eigen::Isometry3d::Identity();
+      PinholeIntrinsics K;
+      const auto closerOver = [&](const std::shared_ptr<VoxelMap>& map) -> LoopCloser& {
+        return closer_.over(map, K, [&](const VoxelMap& m) {
+          return std::make_unique<LoopCloser>(m, K, config_.range, config_.loop);
+        });
+      };
+      if (attempt || observe) {
+        T_odom_C = conv::fromPoseMsg(f.status->camera_pose);
+        K = conv::intrinsicsFromCameraInfo(*f.info);
+        depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
+      }
+      if (attempt) {
         // The offline order: this frame's attempt sees the map fused up to the previous frame.
         if (mode_ == Mode::kReplay && prev >= 0.0 && !ctx_->map.waitFused(prev, wait_timeout_s_))
           NODELET_WARN("loop_closure: the map did not catch up with frame %.3f within %.0f s", prev,
                        wait_timeout_s_);
-        const Eigen::Isometry3d T_odom_C = conv::fromPoseMsg(f.status->camera_pose);
-        const PinholeIntrinsics K = conv::intrinsicsFromCameraInfo(*f.info);
-        const DepthImage depth = conv::depthFromMsg(*f.image, 1.0, DepthRange{0.0, 1e9});
         const std::shared_ptr<VoxelMap> map = ctx_->map.map();
         std::optional<LoopClosureResult> res;
         if (map && map->occupiedCount() > 0)
-          res = closer_
-                    .over(map, K,
-                          [&](const VoxelMap& m) {
-                            return std::make_unique<LoopCloser>(m, K, config_.range, config_.loop);
-                          })
-                    .attempt(depth, stamp, T_odom_C, X);
+          res = closerOver(map).attempt(*depth, stamp, T_odom_C, X);
         if (res) {
           {
             std::lock_guard<std::mutex> lock(diag_mutex_);
@@ -180,6 +189,13 @@ class LoopClosureNodelet : public nodelet::Nodelet {
             }
           }
         }
+      }
+      if (observe) {
+        // After the decision, at the pose fusion uses, as Mapper::process observes after fusing;
+        // the map is made here if fusion has not made it yet (the same parameters and first pose),
+        // so the layer takes the same frames as offline whatever the nodelets' order.
+        const Eigen::Isometry3d T_map_C = X * T_odom_C;
+        closerOver(ctx_->map.ensureMap(K, config_, T_map_C)).observe(*depth, T_map_C);
       }
     } catch (const std::exception& e) {
       NODELET_ERROR_THROTTLE(1.0, "loop_closure: frame at %.3f: %s", stamp, e.what());

@@ -608,10 +608,22 @@ class RegistrationNodelet : public nodelet::Nodelet {
     return true;
   }
   bool onSave(rig_msgs::SaveFile::Request& req, rig_msgs::SaveFile::Response& res) {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    res.path = req.path.empty() ? trajectory_path_ : req.path;
+    Trajectory odom;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      res.path = req.path.empty() ? trajectory_path_ : req.path;
+      odom.assign(trajectory_.begin(), trajectory_.end());
+    }
+    // In replay the loop closure may still be deciding the last frames (it runs behind the
+    // odometry): their map poses wait for its decision on the last one, without holding the
+    // odometry's state.
+    if (mode_ == Mode::kReplay && !odom.empty() &&
+        !ctx_->map.correctionFor(odom.back().stamp_s, true, kSaveWaitS))
+      NODELET_WARN(
+          "registration: save_trajectory: loop closure did not decide the frame at %.3f within "
+          "%.0f s; the last frames' map poses use the decision before it",
+          odom.back().stamp_s, kSaveWaitS);
     try {
-      const Trajectory odom(trajectory_.begin(), trajectory_.end());
       Trajectory map;
       for (const auto& p : odom) {
         const auto X = ctx_->map.correctionFor(p.stamp_s, false, 0.0);
@@ -648,6 +660,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   }
 
   Mode mode_ = Mode::kLive;
+  static constexpr double kSaveWaitS = 10.0;  ///< save_trajectory's wait for loop closure, s
   double prev_stamp_ = -1.0;  ///< stamp of the last frame tracked or lost (not rejected)
   std::string odom_frame_, base_frame_, map_frame_, guess_frame_, camera_frame_, trajectory_path_;
   double guess_timeout_s_ = 0.05, static_tf_timeout_s_ = 2.0, lost_pos_var_ = 1.0,

@@ -44,6 +44,7 @@ TEST(LoopClosure, SingleWallIsADegenerateView) {
   const DepthImage wall(640, 480, 2.0025f);
   map.fuse(wall, k, Eigen::Isometry3d::Identity());
   LoopClosureConfig lc;
+  lc.reference = LoopReference::kRaycast;  // closeLoop: the ray cast
   lc.min_model_age_frames = 0;
   const LoopClosureResult r =
       closeLoop(map, wall, k, DepthRange{}, Eigen::Isometry3d::Identity(), lc);
@@ -61,6 +62,7 @@ TEST(LoopClosure, GatesRejectASparseModelAndALargeJump) {
   map.placeRegion(run.T_W_C.front());
   const DepthImage d0 = run.renderFrame(0, clean, 1, 2);
   LoopClosureConfig lc;
+  lc.reference = LoopReference::kRaycast;  // closeLoop: the ray cast
   lc.enabled = true;
   lc.min_model_age_frames = 0;  // one fused frame is the whole model here
   lc.deadband_m = 0.0;
@@ -131,6 +133,7 @@ RunErrors driftingOdometryRun(const sim::RenderedRun& run, const std::vector<Dep
   mc.map.bounded = false;
   mc.range = run.range;
   mc.loop.enabled = loop;
+  mc.loop.reference = LoopReference::kRaycast;  // the thesis's reference (see the Room3 test)
   mc.loop.cl_step = 5;
   mc.loop.min_model_age_frames = 30;
   Mapper mapper(run.intrinsics, mc, run.T_W_C.front());
@@ -210,7 +213,8 @@ void expectAttemptsAndAccepted(const TrackedPair& r, int lo, int hi) {
   EXPECT_LE(r.accepted, hi);
 }
 
-TrackedPair trackWithAndWithoutLoopClosure(const std::string& name, bool bounded_map) {
+TrackedPair trackWithAndWithoutLoopClosure(const std::string& name, bool bounded_map,
+                                           LoopReference reference = LoopReference::kRaycast) {
   const sim::RenderedRun run = sim::makeRun(name);
   const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
   TrackerConfig tc;
@@ -231,6 +235,7 @@ TrackedPair trackWithAndWithoutLoopClosure(const std::string& name, bool bounded
   mc.map.bounded = bounded_map;
   mc.range = run.range;
   mc.loop.enabled = true;
+  mc.loop.reference = reference;
   Mapper mapper(run.intrinsics, mc, closed.pose());
   const std::uint64_t seed = dt_test::runSeed(1);
   std::vector<Eigen::Isometry3d> est_open, est_closed;
@@ -306,6 +311,65 @@ TEST(LoopClosure, TrackerOnRoom3DriftsLessWithLoopClosure) {
       << "roll";
 }
 
+// The surface layer (cl_reference surface, the default) on the same thesis-mode rt3 run. Measured
+// (noise seeds 1/2/3, 2026-12-04): end drift 3.97/4.38/4.31 mm against 34.9/36.5/37.7 open loop
+// (ray cast: 16.6/14.8/12.5); largest rotation errors 0.30-0.34 / 0.11 / 0.19-0.26 deg against
+// 1.11-1.16 / 0.32-0.34 / 0.40-0.43; position y/z 16.2-17.7 / 3.2-3.7 mm against 37.1-39.6 /
+// 9.8-10.5; 14-15 of 75 accepted. Position x is not lower on every seed (20.4/9.0/13.0 against
+// 13.4/12.6/11.1 mm): it is not asserted.
+TEST(LoopClosure, TrackerOnRt3DriftsLessWithTheSurfaceLayer) {
+  const TrackedPair r = trackWithAndWithoutLoopClosure("rt3", true, LoopReference::kSurface);
+  expectAttemptsAndAccepted(r, 8, 21);
+  EXPECT_LT(r.closed.end_drift_mm, 0.25 * r.open.end_drift_mm);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_LT(r.closed.max_err_deg[a], r.open.max_err_deg[a]) << "rotation axis " << a;
+  for (int a = 1; a < 3; ++a)
+    EXPECT_LT(r.closed.max_err_mm[a], r.open.max_err_mm[a]) << "position axis " << a;
+}
+
+// The layer takes a frame only once it is min_model_age_frames old (here 3; frames 0-58 of the
+// 62 observed on rt3), and corrects a later frame's pose, off by 5.4 mm and 0.2 deg, to within
+// a millimetre and 0.05 deg of the truth (measured 0.21 mm, 0.004 deg). Its reach is short: off
+// by 10.8 mm and 0.4 deg, the first round finds planes for the near wall only and the attempt
+// stops as a degenerate view.
+TEST(LoopClosure, SurfaceLayerCorrectsAgainstFramesOnceOld) {
+  const sim::RenderedRun run = sim::makeRun("rt3");
+  const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
+  VoxelMap map{MapConfig{}};
+  map.placeRegion(run.T_W_C.front());
+  LoopClosureConfig lc;
+  lc.enabled = true;
+  lc.min_model_age_frames = 3;
+  LoopCloser closer(map, run.intrinsics, run.range, lc);
+  ASSERT_NE(closer.layer(), nullptr);
+  Eigen::Isometry3d off = Eigen::Isometry3d::Identity();
+  off.linear() = Eigen::AngleAxisd(0.2 * M_PI / 180.0, Eigen::Vector3d::UnitY()).matrix();
+  off.translation() = Eigen::Vector3d(0.004, -0.002, 0.003);
+  const std::size_t i = 64;
+  const DepthImage cur = run.renderFrame(i, noise, 3, 2);
+  for (std::size_t k = 0; k < 3; ++k) closer.observe(run.renderFrame(k, noise, 1, 2), run.T_W_C[k]);
+  // Three frames observed, none old enough: the layer is empty.
+  LoopClosureResult r = closer.attempt(cur, run.stamps_s[i], run.T_W_C[i] * off);
+  EXPECT_FALSE(r.accepted);
+  EXPECT_NE(r.reason.find("model too sparse: 0 cells in the surface layer"), std::string::npos)
+      << r.reason;
+  EXPECT_EQ(closer.layer()->voxelCount(), 0u);
+  EXPECT_GT(closer.pendingBytes(), 0u);
+  for (std::size_t k = 3; k < 62; ++k)
+    closer.observe(run.renderFrame(k, noise, 1, 2), run.T_W_C[k]);
+  EXPECT_GT(closer.layer()->voxelCount(), 0u);
+  r = closer.attempt(cur, run.stamps_s[i], run.T_W_C[i] * off);
+  ASSERT_TRUE(r.accepted) << r.reason;
+  const Eigen::Isometry3d e = run.T_W_C[i].inverse() * r.T_W_C;
+  std::printf("surface layer: %s; %.2f mm, %.3f deg from the truth (started 5.4 mm, 0.200 deg)\n",
+              r.reason.c_str(), 1000 * e.translation().norm(), rotationAngle(e) * kRadToDeg);
+  EXPECT_LT(e.translation().norm(), 0.001);
+  EXPECT_LT(rotationAngle(e) * kRadToDeg, 0.05);
+  // closeLoop builds a closer for one call: it has no layer and refuses the surface reference.
+  EXPECT_THROW(closeLoop(map, cur, run.intrinsics, run.range, run.T_W_C[i], lc),
+               std::invalid_argument);
+}
+
 // Half-resolution loop closure (virtual image cast at 320x240, 5-px cells on both images) against
 // full resolution (640x480, 10-px cells): on a noisy chair map at 5 mm, from predictions off by
 // up to 3 cm / 1 deg, both pull the pose to the same place. The cells cover the same view, so the
@@ -320,6 +384,8 @@ TEST(LoopClosure, HalfResolutionRaycastAgreesWithFullResolution) {
   for (std::size_t i = 0; i < 40 && i < run.size(); i += 4)
     map.fuse(run.renderFrame(i, noise, 7, 2), run.intrinsics, run.T_W_C[i]);
   LoopClosureConfig full;
+  full.reference = LoopReference::kRaycast;  // closeLoop: the ray cast
+  full.raycast_downsample = 1;               // (the default is 2: without this line both were half)
   full.enabled = true;
   full.min_model_age_frames = 0;
   full.deadband_m = 0.0;

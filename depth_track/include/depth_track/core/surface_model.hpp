@@ -54,10 +54,10 @@ struct SurfaceModelConfig {
 
 /// What SurfaceModel::refine did to one keyframe.
 struct ModelRefineStats {
-  int cells = 0;      ///< cells of the keyframe
-  int refined = 0;    ///< cells that took the model's plane
-  int no_model = 0;   ///< no confident voxel where the cell lies
-  int rejected = 0;   ///< a voxel, but its plane failed the offset or normal gate
+  int cells = 0;              ///< cells of the keyframe
+  int refined = 0;            ///< cells that took the model's plane
+  int no_model = 0;           ///< no confident voxel where the cell lies
+  int rejected = 0;           ///< a voxel, but its plane failed the offset or normal gate
   double rms_offset_m = 0.0;  ///< RMS distance of the refined cells' means to the model planes
 };
 

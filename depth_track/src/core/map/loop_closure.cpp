@@ -160,6 +160,10 @@ LoopCloser::LoopCloser(const VoxelMap& map, const PinholeIntrinsics& intrinsics,
 LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
                             const PinholeIntrinsics& intrinsics, const DepthRange& range,
                             const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config) {
+  if (config.reference != LoopReference::kRaycast)
+    throw std::invalid_argument(
+        "closeLoop: needs reference raycast (a one-shot closer has observed no frames for a "
+        "surface layer; use LoopCloser::observe and attempt)");
   return LoopCloser(map, intrinsics, range, config).attempt(current, 0.0, T_W_C_pred);
 }
 
@@ -238,7 +242,7 @@ std::string LoopCloser::castModel(const Eigen::Isometry3d& T_W_C, LoopClosureRes
 }
 
 std::string LoopCloser::layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C,
-                                   LoopClosureResult& r, CellCloud& model) const {
+                                   bool final_round, LoopClosureResult& r, CellCloud& model) const {
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<std::uint8_t> took;
   ModelRefineStats st;
@@ -248,7 +252,7 @@ std::string LoopCloser::layerModel(const CellCloud& cur, const Eigen::Isometry3d
   r.model_fraction = cur.cells.empty() ? 0.0 : static_cast<double>(st.refined) / cur.cells.size();
   r.model_cells = static_cast<int>(model.cells.size());
   std::ostringstream why;
-  if (r.model_fraction < config_.min_model_fraction) {
+  if (final_round && r.model_fraction < config_.min_model_fraction) {
     why << "model too sparse: the surface layer holds " << 100.0 * r.model_fraction
         << " % of the frame's cells (< " << 100.0 * config_.min_model_fraction << " %)";
   } else if (r.model_cells < config_.min_model_cells) {
@@ -352,11 +356,13 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
   }
   if (layer_) {
     // The layer's planes are taken again at the corrected pose on each round: the pairs follow
-    // the correction, within the layer's offset gate of the plane.
+    // the correction, within the layer's offset gate of the plane. The coverage gate is taken at
+    // the last round's pose (a prediction a few millimetres off already loses the far cells'
+    // planes: the layer's reach along a normal is about a voxel and a half).
     for (int round = 0; round < config_.surface_rounds; ++round) {
       CellCloud model;
       RegistrationResult res;
-      why = layerModel(cur, T_W_C_pred * correction, r, model);
+      why = layerModel(cur, T_W_C_pred * correction, round + 1 == config_.surface_rounds, r, model);
       if (why.empty()) why = registerOnto(model, cur, r, res);
       if (!why.empty()) {
         r.reason = why;

@@ -88,10 +88,11 @@ void Mapper::save(const std::string& path) { map_.save(path); }
 
 std::string Mapper::summary() const {
   char buf[200];
-  std::snprintf(buf, sizeof(buf),
-                "fuse_median_ms=%.2f raycast_median_ms=%.2f loop_median_ms=%.2f loop_closures=%d/%d",
-                fuseMedianMs(), raycastMedianMs(), loop_ ? loop_->timing().median() : 0.0,
-                loop_accepted_, loop_attempts_);
+  std::snprintf(
+      buf, sizeof(buf),
+      "fuse_median_ms=%.2f raycast_median_ms=%.2f loop_median_ms=%.2f loop_closures=%d/%d",
+      fuseMedianMs(), raycastMedianMs(), loop_ ? loop_->timing().median() : 0.0, loop_accepted_,
+      loop_attempts_);
   return buf;
 }
 

@@ -55,13 +55,18 @@ std::vector<MapperParamSpec> makeParams() {
                   [](MapperConfig& c) -> bool& { return c.loop.enabled; }));
   p.push_back(num("cl_step", "frames", "loop-closure attempt every n-th frame (CLStep)",
                   [](MapperConfig& c) -> int& { return c.loop.cl_step; }));
-  p.push_back({"cl_reference", "",
-               "what loop closure registers against: raycast (a virtual image of the occupancy "
-               "map) | surface (a mean-surface layer of the frames fused cl_min_model_age ago)",
-               [](const MapperConfig& c) { return toString(c.loop.reference); },
-               [](MapperConfig& c, const std::string& v) {
-                 c.loop.reference = parseLoopReference(v);
-               }});
+  p.push_back(
+      {"cl_reference", "",
+       "what loop closure registers against: raycast (a virtual image of the occupancy "
+       "map) | surface (a mean-surface layer of the frames fused cl_min_model_age ago)",
+       [](const MapperConfig& c) { return toString(c.loop.reference); },
+       [](MapperConfig& c, const std::string& v) { c.loop.reference = parseLoopReference(v); }});
+  p.push_back(num("cl_surface_voxel", "m",
+                  "cl_reference surface: voxel edge of the loop closer's mean-surface layer",
+                  [](MapperConfig& c) -> double& { return c.loop.surface.voxel_m; }));
+  p.push_back(num("cl_surface_min_weight", "frames",
+                  "cl_reference surface: frames that saw a layer voxel before its plane is used",
+                  [](MapperConfig& c) -> int& { return c.loop.surface.min_weight; }));
   p.push_back(num("cl_surface_after_raycast", "",
                   "cl_reference surface: start from the ray cast's correction when it passes "
                   "its gates (reaches drift beyond the layer's 3 cm): on | off",

@@ -83,13 +83,17 @@ struct LoopClosureConfig {
   /// is reduced to cells (observe()) and, once min_model_age_frames old, averaged into `surface`:
   /// a mean-surface layer in the map frame, whose planes average the sensor's noise where the
   /// occupancy map's ray cast returns the near side of a shell of stray hits.
-  LoopReference reference = LoopReference::kRaycast;
-  /// The layer (kSurface): 1 cm voxels, kept whole (no radius), and a cell within 3 cm of a
-  /// plane takes it (the reach of a correction per round).
+  LoopReference reference = LoopReference::kSurface;
+  /// The layer (kSurface): 1 cm voxels (the tracker's), kept whole (no radius); a cell within
+  /// 3 cm of a plane takes it (the reach of a correction per round), and one observation makes a
+  /// voxel's plane usable: the frames are reduced at half resolution, and most 1 cm voxels see a
+  /// cell mean in only some of them (with the tracker's 3, 20-33 % of a rendered rt3 frame's
+  /// cells found a plane against 96 % with 1; docs/mapping.md has the sweep).
   SurfaceModelConfig surface = [] {
     SurfaceModelConfig c;
     c.keep_radius_m = 0.0;
     c.max_offset_m = 0.03;
+    c.min_weight = 1;
     return c;
   }();
   /// kSurface: registrations against the layer, its planes taken again at the corrected pose.
@@ -184,8 +188,9 @@ class LoopCloser {
   // Each stage fills its fields of `r` and returns why the attempt stops there (empty: go on).
   /// The ray cast at T_W_C reduced to cells (kRaycast's model).
   std::string castModel(const Eigen::Isometry3d& T_W_C, LoopClosureResult& r, CellCloud& model);
-  /// The current cells that lie on a confident plane of the layer seen from T_W_C, moved onto it.
-  std::string layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C,
+  /// The current cells that lie on a confident plane of the layer seen from T_W_C, moved onto it
+  /// (the coverage gate on the final round only; the cell count gate on each).
+  std::string layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C, bool final_round,
                          LoopClosureResult& r, CellCloud& model) const;
   /// The normal-spread gate, then `cur` registered onto `model` from the identity.
   std::string registerOnto(const CellCloud& model, const CellCloud& cur, LoopClosureResult& r,
@@ -200,7 +205,9 @@ class LoopCloser {
 /// identity. Never throws for a poor model or fit (those are rejections with a reason); throws
 /// std::invalid_argument for a bad config or pose and DepthInputError for a frame of the wrong
 /// size. Thread-safe against other uses of the map. A LoopCloser built for the call; its
-/// correction starts from the identity (map frame = the tracker's world).
+/// correction starts from the identity (map frame = the tracker's world). The ray-cast
+/// reference only (a closer built for one call has observed no frames for a surface layer):
+/// throws std::invalid_argument for config.reference kSurface.
 LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
                             const PinholeIntrinsics& intrinsics, const DepthRange& range,
                             const Eigen::Isometry3d& T_W_C_pred, const LoopClosureConfig& config);
