@@ -13,13 +13,15 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <memory>
 
+#include "../shared_data.hpp"
 #include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
-#include "../shared_data.hpp"
 #include "test_seed.hpp"
 
 using namespace depth_track;
@@ -41,8 +43,7 @@ RunResult trackRendered(const std::string& name, const TrackerConfig& cfg,
   std::vector<Eigen::Isometry3d> est, gt;
   RunResult r;
   for (std::size_t i = 0; i < n; ++i) {
-    const FrameStatus st =
-        tracker.track(run.renderFrame(i, noise, seed), run.stamps_s[i]);
+    const FrameStatus st = tracker.track(run.renderFrame(i, noise, seed), run.stamps_s[i]);
     r.tracked += st.tracked;
     est.push_back(st.T_W_C);
     gt.push_back(run.T_W_C[i]);
@@ -191,16 +192,29 @@ TEST(WholeRun, Room3D435WithoutModel) {
 // Issue 12's target is ATE RMSE <= 0.03 m on each sequence.
 namespace {
 
+// With `mapping`, every frame also goes through a Mapper, accepted loop-closure corrections fed
+// back into the tracker as track_sequence does.
 TrajectoryEvaluation trackTum(const std::string& dir, const PinholeIntrinsics& K,
-                              const TrackerConfig& cfg, const char* label) {
+                              const TrackerConfig& cfg, const char* label,
+                              const MapperConfig* mapping = nullptr) {
   const std::vector<TumFrame> frames = readTumFrameList(dir + "/depth.txt");
   Tracker tracker(K, cfg);
+  std::unique_ptr<Mapper> mapper;
+  if (mapping) mapper = std::make_unique<Mapper>(K, *mapping, tracker.pose());
   Trajectory est;
   for (const TumFrame& f : frames) {
-    const FrameStatus st =
-        tracker.track(loadTumDepth(f.path, 1.0 / 5000.0, DepthRange{}), f.stamp_s);
+    const DepthImage depth = loadTumDepth(f.path, 1.0 / 5000.0, DepthRange{});
+    FrameStatus st = tracker.track(depth, f.stamp_s);
+    if (mapper) {
+      const MapperFrame mf = mapper->process(depth, st.T_W_C);
+      if (mf.loop_attempted && mf.loop.accepted) {
+        tracker.correctPose(mf.T_W_C);
+        st.T_W_C = mf.T_W_C;
+      }
+    }
     est.push_back({f.stamp_s, st.T_W_C});
   }
+  if (mapper) std::printf("%s: %s\n", label, mapper->summary().c_str());
   const TrajectoryEvaluation ev =
       evaluateTrajectory(est, readTumTrajectory(dir + "/groundtruth.txt"));
   std::printf("%s: %s\n", label, formatEvaluation(ev).c_str());
@@ -265,6 +279,35 @@ TEST(WholeRun, TumTeddyModelAgainstWithout) {
   EXPECT_GE(r.without.standard.frames, 190u);
   EXPECT_LE(r.without.standard.ate_rmse_m, 0.03);  // the target holds without the model too
   EXPECT_LT(r.model.standard.ate_rmse_m, r.without.standard.ate_rmse_m);
+}
+
+// Loop closure (off by default) against its mean-surface layer (cl_reference surface, its
+// default) on the real sequences, with the defaults otherwise: where it cannot help it may cost at
+// most 5 % (issue 12). Measured (2026-12-04): fr1/xyz 0.0146 m against 0.0153 m without (58 of 79
+// corrections accepted); teddy 0.0094 m against 0.0094 m (none of 20: the layer holds under half
+// of each view). Against the occupancy map's ray cast (cl_reference raycast) fr1/xyz rose to
+// 0.0249 m (docs/mapping.md).
+namespace {
+void expectLoopClosureCostsAtMost5Percent(const std::string& dir, const PinholeIntrinsics& K,
+                                          const std::string& name) {
+  MapperConfig mc;
+  mc.loop.enabled = true;
+  const TrajectoryEvaluation open = trackTum(dir, K, TrackerConfig{}, (name + " defaults").c_str());
+  const TrajectoryEvaluation closed =
+      trackTum(dir, K, TrackerConfig{}, (name + " with loop closure").c_str(), &mc);
+  EXPECT_EQ(closed.standard.frames, open.standard.frames);
+  EXPECT_LE(closed.standard.ate_rmse_m, 1.05 * open.standard.ate_rmse_m);
+}
+}  // namespace
+
+TEST(WholeRun, TumFr1XyzLoopClosure) {
+  DT_FR1_XYZ_OR_SKIP(dir);
+  expectLoopClosureCostsAtMost5Percent(dir, kFr1, "fr1/xyz");
+}
+
+TEST(WholeRun, TumTeddyLoopClosure) {
+  DT_TEDDY_OR_SKIP(dir);
+  expectLoopClosureCostsAtMost5Percent(dir, kFr3, "teddy");
 }
 
 // The Kinect preset (an explicit override, tuned on teddy, so it proves nothing about other
