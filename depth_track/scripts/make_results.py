@@ -730,7 +730,9 @@ def write_page(bags, args):
       "cells lost, no prefilter). The rest: P2P / P2L / Cell Search; *adaptive* or *fixed* "
       "reference (the thesis's ICPFrames: 1 for P2P, 4 on XTest1, 5 elsewhere); bilateral "
       "prefilter or none (the matrix uses the separable bilateral, ~12 ms of CPU per frame; the "
-      "thesis's own configurations its full 31x31 kernel, ~90 ms); loop closure against the map. "
+      "thesis's own configurations its full 31x31 kernel, ~90 ms); loop closure (its default "
+      "reference since 2026-12-04: the loop closer's mean-surface layer of the frames fused 60 or "
+      "more frames before, docs/mapping.md). "
       "The camera presets (`config/d435.yaml` on the D435 bags, `config/tum_kinect.yaml` on the "
       "TUM bags) are rows of their own, labelled *camera preset*: explicit overrides, not the "
       "default. `tum_kinect.yaml` was tuned on teddy, so its teddy row is no result.")
