@@ -142,6 +142,7 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   state_ = TrackingState::kLost;
   frames_since_refresh_ = 0;
   history_.clear();
+  last_held_ = false;
   prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
   clearModel();
 }
@@ -260,6 +261,10 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   // them, and holding it along directions the first, badly aligned pairs seem not to fix would
   // also keep the jump gate from seeing how far off it is. Every direction is solved then.
   if (state_ != TrackingState::kTracking) reg_config.degeneracy.noise_margin = 0.0;
+  // Hysteresis: a view that held directions keeps holding those that only just clear the
+  // margin (docs/tracking.md, "Hysteresis").
+  else if (last_held_ && reg_config.degeneracy.noise_margin > 0.0)
+    reg_config.degeneracy.noise_margin = reg_config.degeneracy.release_margin;
   RegistrationResult reg;
   if (st.cells < config_.registration.min_matches) {
     std::ostringstream s;
@@ -332,6 +337,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
           withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
     }
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
+    last_held_ = held;
     st.tracked = true;
     state_ = TrackingState::kTracking;
     velocity_T_Cprev_Ccur_ = T_W_prev.inverse() * T_W_C_;

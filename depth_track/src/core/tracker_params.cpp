@@ -129,6 +129,11 @@ std::vector<ParamSpec> makeParams() {
           "pose information below this many times its normal-noise floor counts as none; "
           "directions without information keep the motion prior (0 = off)",
           [](TrackerConfig& c) -> double& { return c.registration.degeneracy.noise_margin; }));
+  p.push_back(num(
+      "degeneracy_release_margin", "",
+      "... after a frame that held directions, a direction is registered again only above this "
+      "many times its floor (>= degeneracy_margin; equal = no hysteresis)",
+      [](TrackerConfig& c) -> double& { return c.registration.degeneracy.release_margin; }));
   // ---- tracker ----
   p.push_back(num("icp_frames", "",
                   "frames between reference refreshes (ICPFrames); 0 = adaptive keyframes",

@@ -232,6 +232,7 @@ class CellOdometry {
   /// view fixed every direction, m^2, starting at (1 cm)^2: the prior's variance for the
   /// degeneracy weighing.
   double prior_var_m2_ = 1e-4;
+  bool last_held_ = false;  ///< the last tracked frame held directions (release_margin applies)
   RunningStats timing_;
   /// Empties the registration model and its frame offset (reset).
   void clearModel();

@@ -34,6 +34,11 @@ namespace depth_track {
 /// direction it keeps.
 struct DegeneracyConfig {
   double noise_margin = 3.0;  ///< 0 switches the analysis off (plain solve)
+  /// Hysteresis for a sequence of frames (CellOdometry): after a frame that held directions,
+  /// the next one registers a direction only above this many times its floor (>= noise_margin;
+  /// equal = no hysteresis). Near the margin the gain switches a direction on and off from frame
+  /// to frame, and each single frame that releases it takes a whole biased step.
+  double release_margin = 6.0;
   /// Standard deviation of the prior per frame along a direction (metres; at the length L for
   /// rotations) when the caller does not know it better (CellOdometry measures it from how well
   /// the recent motion fits a constant velocity).
