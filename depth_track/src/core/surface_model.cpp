@@ -198,7 +198,7 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
 
 CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
                                ModelRefineStats* stats,
-                               std::vector<std::uint8_t>* took_model) const {
+                               std::vector<std::uint8_t>* took_model, double reach_m) const {
   CellCloud out = cells;
   if (took_model) took_model->assign(cells.cells.size(), 0);
   ModelRefineStats s;
@@ -211,20 +211,51 @@ CellCloud SurfaceModel::refine(const CellCloud& cells, const Eigen::Isometry3d& 
   const float k_sigma = static_cast<float>(config_.max_offset_sigmas);
   const bool noise_known = config_.noise.known();
   const float voxel = static_cast<float>(config_.voxel_m);
+  const int reach_steps =
+      reach_m > 0.0 ? static_cast<int>(std::ceil(reach_m / config_.voxel_m)) : 0;
+  const float reach = static_cast<float>(reach_m);
   double sum_sq = 0.0;
   for (std::size_t i = 0; i < out.cells.size(); ++i) {
     Cell& c = out.cells[i];
     const Eigen::Vector3f p = R * c.mean_C + t;
     const Eigen::Vector3f n_cell = R * c.normal_C;
     const float z = c.mean_C.z();
-    const float gate =
+    float gate =
         noise_known ? std::min(max_offset, k_sigma * static_cast<float>(config_.noise.sigmaAt(z)))
                     : max_offset;
+    Eigen::Vector3f q = p;  // where along the normal the averaging is centred
+    if (reach_steps > 0) {
+      // The nearest agreeing plane within reach along the normal, stepping outwards.
+      bool found_plane = false, seen_any = false;
+      for (int j = 0; j <= reach_steps && !found_plane; ++j) {
+        for (const int sgn : {1, -1}) {
+          if (j == 0 && sgn < 0) continue;
+          const Eigen::Vector3f pj = p + static_cast<float>(sgn * j) * voxel * n_cell;
+          const Voxel* v = find(keyOf(pj));
+          if (!v || v->weight < config_.min_weight) continue;
+          seen_any = true;
+          const Eigen::Vector3f n_v(v->normal[0], v->normal[1], v->normal[2]);
+          const float len = n_v.norm();
+          if (!(len > 0.5f)) continue;
+          const Eigen::Vector3f m_v(v->mean[0], v->mean[1], v->mean[2]);
+          if ((n_v / len).dot(n_cell) < cos_min || std::abs((n_v / len).dot(p - m_v)) > reach)
+            continue;
+          q = pj;
+          found_plane = true;
+          break;
+        }
+      }
+      if (!found_plane) {
+        ++(seen_any ? s.rejected : s.no_model);
+        continue;
+      }
+      gate = std::max(gate, reach);
+    }
     // The voxel the cell lies in and its neighbours along the cell's normal: a surface near a
     // voxel face splits its observations between the two layers by the sign of their noise,
     // and one layer alone would keep the cell on its own side. Voxels whose plane agrees with
     // the cell are averaged, weighted by their observations.
-    const std::uint64_t keys[3] = {keyOf(p), keyOf(p + voxel * n_cell), keyOf(p - voxel * n_cell)};
+    const std::uint64_t keys[3] = {keyOf(q), keyOf(q + voxel * n_cell), keyOf(q - voxel * n_cell)};
     Eigen::Vector3f m_sum = Eigen::Vector3f::Zero(), n_sum = Eigen::Vector3f::Zero();
     float w_sum = 0.f;
     bool seen = false;

@@ -71,9 +71,12 @@ class SurfaceModel {
   /// A copy of `cells` (camera frame, seen from T_W_C) with the model's plane in place of each
   /// cell's own where the model is confident and agrees (SurfaceModelConfig gates).
   /// `took_model`, when given, gets one flag per cell: 1 where the cell took the model's plane.
+  /// `reach_m` > 0 widens the search along each cell's normal to that distance: the nearest
+  /// voxel whose plane agrees within reach_m is the centre of the averaging, and the offset gate
+  /// becomes reach_m (a first, coarse round after drift; 0 = the voxel and its two neighbours).
   CellCloud refine(const CellCloud& cells, const Eigen::Isometry3d& T_W_C,
                    ModelRefineStats* stats = nullptr,
-                   std::vector<std::uint8_t>* took_model = nullptr) const;
+                   std::vector<std::uint8_t>* took_model = nullptr, double reach_m = 0.0) const;
   void clear();
   /// Drops every voxel whose mean lies farther than radius_m from centre_W (world, metres) and
   /// shrinks the table to what is left. Returns the number dropped.

@@ -128,6 +128,7 @@ std::vector<std::string> LoopClosureConfig::validate(const PinholeIntrinsics& in
   if (min_model_age_frames < 0) p.push_back("min_model_age_frames must be >= 0");
   if (reference == LoopReference::kSurface) {
     if (surface_rounds < 1) p.push_back("surface_rounds must be >= 1");
+    if (!(surface_reach_m >= 0.0)) p.push_back("surface_reach_m must be >= 0 m");
     for (const auto& s : surface.validate()) p.push_back("surface: " + s);
   }
   if (!(deadband_m >= 0.0) || !(deadband_deg >= 0.0))
@@ -167,12 +168,16 @@ LoopClosureResult closeLoop(const VoxelMap& map, const DepthImage& current,
   return LoopCloser(map, intrinsics, range, config).attempt(current, 0.0, T_W_C_pred);
 }
 
+PcaConfig LoopCloser::castPca() const {
+  PcaConfig pca = config_.pca;
+  pca.cell_size /= config_.raycast_downsample;  // the same cells on the halved image
+  return pca;
+}
+
 CellCloud LoopCloser::reduceFrame(const DepthImage& current) const {
   const int f = config_.raycast_downsample;
-  PcaConfig pca = config_.pca;
-  pca.cell_size /= f;
-  CellCloud cur = f == 1 ? reduceToCells(current, cast_intrinsics_, pca)
-                         : reduceToCells(downsampleDepth(current, f), cast_intrinsics_, pca);
+  CellCloud cur = f == 1 ? reduceToCells(current, cast_intrinsics_, castPca())
+                         : reduceToCells(downsampleDepth(current, f), cast_intrinsics_, castPca());
   dropGrazingCells(cur, config_.min_incidence_cos);
   return cur;
 }
@@ -228,9 +233,7 @@ std::string LoopCloser::castModel(const Eigen::Isometry3d& T_W_C, LoopClosureRes
     return why.str();
   }
   t0 = std::chrono::steady_clock::now();
-  PcaConfig pca = config_.pca;
-  pca.cell_size /= config_.raycast_downsample;
-  model = reduceToCells(virt, cast_intrinsics_, pca);
+  model = reduceToCells(virt, cast_intrinsics_, castPca());
   dropGrazingCells(model, config_.min_incidence_cos);
   r.ms_reduce += msSince(t0);
   r.model_cells = static_cast<int>(model.cells.size());
@@ -242,11 +245,12 @@ std::string LoopCloser::castModel(const Eigen::Isometry3d& T_W_C, LoopClosureRes
 }
 
 std::string LoopCloser::layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C,
-                                   bool final_round, LoopClosureResult& r, CellCloud& model) const {
+                                   bool final_round, double reach_m, LoopClosureResult& r,
+                                   CellCloud& model) const {
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<std::uint8_t> took;
   ModelRefineStats st;
-  model = layer_->refine(cur, T_W_C, &st, &took);
+  model = layer_->refine(cur, T_W_C, &st, &took, reach_m);
   keepFlagged(model, took);
   r.ms_reduce += msSince(t0);
   r.model_fraction = cur.cells.empty() ? 0.0 : static_cast<double>(st.refined) / cur.cells.size();
@@ -362,7 +366,8 @@ LoopClosureResult LoopCloser::attempt(const DepthImage& current, double stamp_s,
     for (int round = 0; round < config_.surface_rounds; ++round) {
       CellCloud model;
       RegistrationResult res;
-      why = layerModel(cur, T_W_C_pred * correction, round + 1 == config_.surface_rounds, r, model);
+      why = layerModel(cur, T_W_C_pred * correction, round + 1 == config_.surface_rounds,
+                       round == 0 ? config_.surface_reach_m : 0.0, r, model);
       if (why.empty()) why = registerOnto(model, cur, r, res);
       if (!why.empty()) {
         r.reason = why;

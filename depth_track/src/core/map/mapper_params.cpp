@@ -67,6 +67,10 @@ std::vector<MapperParamSpec> makeParams() {
   p.push_back(num("cl_surface_min_weight", "frames",
                   "cl_reference surface: frames that saw a layer voxel before its plane is used",
                   [](MapperConfig& c) -> int& { return c.loop.surface.min_weight; }));
+  p.push_back(num("cl_surface_reach", "m",
+                  "surface layer: the first round looks this far along each cell's normal for the "
+                  "layer's plane (0 = about a voxel and a half)",
+                  [](MapperConfig& c) -> double& { return c.loop.surface_reach_m; }));
   p.push_back(num("cl_surface_after_raycast", "",
                   "cl_reference surface: start from the ray cast's correction when it passes "
                   "its gates (reaches drift beyond the layer's 3 cm): on | off",

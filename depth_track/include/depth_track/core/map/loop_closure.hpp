@@ -98,6 +98,10 @@ struct LoopClosureConfig {
   }();
   /// kSurface: registrations against the layer, its planes taken again at the corrected pose.
   int surface_rounds = 2;
+  /// kSurface: the first round searches this far along each cell's normal for the layer's plane
+  /// (metres; 0 = the layer's own reach, about a voxel and a half), the later rounds as usual.
+  /// The default is the correction gate (max_correction_m): the drift an attempt may remove.
+  double surface_reach_m = 0.05;
   /// kSurface: start the layer's rounds from the ray cast's correction when that passes its
   /// gates (the cast reaches drift beyond the layer's offset gate; the layer then removes the
   /// cast's bias), else from the prediction.
@@ -184,14 +188,17 @@ class LoopCloser {
   CellCloud scratch_;  ///< a pending frame's cells as integrate() takes them
 
   /// The frame at the cast resolution, reduced with config.pca (grazing cells left out).
+  /// The PCA config at the cast resolution (cell_size divided by raycast_downsample).
+  PcaConfig castPca() const;
   CellCloud reduceFrame(const DepthImage& current) const;
   // Each stage fills its fields of `r` and returns why the attempt stops there (empty: go on).
   /// The ray cast at T_W_C reduced to cells (kRaycast's model).
   std::string castModel(const Eigen::Isometry3d& T_W_C, LoopClosureResult& r, CellCloud& model);
   /// The current cells that lie on a confident plane of the layer seen from T_W_C, moved onto it
-  /// (the coverage gate on the final round only; the cell count gate on each).
+  /// (the coverage gate on the final round only; the cell count gate on each), searching
+  /// reach_m along each normal (SurfaceModel::refine).
   std::string layerModel(const CellCloud& cur, const Eigen::Isometry3d& T_W_C, bool final_round,
-                         LoopClosureResult& r, CellCloud& model) const;
+                         double reach_m, LoopClosureResult& r, CellCloud& model) const;
   /// The normal-spread gate, then `cur` registered onto `model` from the identity.
   std::string registerOnto(const CellCloud& model, const CellCloud& cur, LoopClosureResult& r,
                            RegistrationResult& res) const;
