@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -20,8 +21,12 @@ Vector6d scaleDiagonal(double L) {
 std::vector<std::string> DegeneracyConfig::validate() const {
   std::vector<std::string> p;
   if (!(noise_margin >= 0.0)) p.push_back("degeneracy noise_margin must be >= 0");
-  if (!(release_margin >= noise_margin))
-    p.push_back("degeneracy release_margin must be >= noise_margin (equal = no hysteresis)");
+  if (!(release_margin >= noise_margin)) {
+    std::ostringstream s;
+    s << "degeneracy_release_margin (" << release_margin << ") must be >= degeneracy_margin ("
+      << noise_margin << "); set both (equal = no hysteresis)";
+    p.push_back(s.str());
+  }
   if (!(prior_sigma_m > 0.0)) p.push_back("degeneracy prior_sigma_m must be > 0 m");
   return p;
 }
