@@ -558,8 +558,9 @@ TEST(LoopClosure, SurfaceLayerReachesCentimetresOfDrift) {
         rotationAngle(ea) * kRadToDeg, ra.reason.c_str(), 1000 * eb.translation().norm(),
         rotationAngle(eb) * kRadToDeg, rb.reason.c_str());
     ASSERT_TRUE(ra.accepted) << ra.reason;
-    EXPECT_LT(ea.translation().norm(), 0.002);
-    EXPECT_LT(rotationAngle(ea) * kRadToDeg, 0.1);
+    // As tight as the layer's own-reach test above (measured 0.18-0.27 mm, 0.003-0.005 deg).
+    EXPECT_LT(ea.translation().norm(), 0.001);
+    EXPECT_LT(rotationAngle(ea) * kRadToDeg, 0.05);
     narrow_closed += rb.accepted && eb.translation().norm() < 0.002;
   }
   EXPECT_LE(narrow_closed, 1);
