@@ -27,13 +27,14 @@ struct Listener {
   std::vector<sensor_msgs::Image> images;
   int infos = 0;
   std::string status;
-  double pos_m = -1;
-  std::vector<double> pos_at_frame_m;
+  // Carriage position over time, by the host stamp of each TrackState. The image and the state
+  // arrive on separate connections, so the latest state received when an image arrives may
+  // already show the next move; the stamps say what the carriage did before the frame was taken.
+  std::vector<std::pair<ros::Time, double>> states;
   int track_moves_sent = 0;
   void onImage(const sensor_msgs::Image& i) {
     std::lock_guard<std::mutex> l(m);
     images.push_back(i);
-    pos_at_frame_m.push_back(pos_m);
   }
   void onInfo(const sensor_msgs::CameraInfo&) {
     std::lock_guard<std::mutex> l(m);
@@ -45,11 +46,18 @@ struct Listener {
   }
   void onState(const rig_msgs::TrackState& s) {
     std::lock_guard<std::mutex> l(m);
-    pos_m = s.track_pos_m;
+    states.emplace_back(s.header.stamp, s.track_pos_m);
   }
   void onRaw(const rig_msgs::RawFrame& r) {
     std::lock_guard<std::mutex> l(m);
     if (r.outgoing && r.bytes.size() > 5 && r.bytes[5] == 0x10) ++track_moves_sent;  // kTrackMove
+  }
+  // Position in the last state stamped at or before t (-1 if none).
+  double posAt(const ros::Time& t) const {
+    double pos = -1;
+    for (const auto& st : states)
+      if (st.first <= t) pos = st.second;
+    return pos;
   }
   std::string getStatus() {
     std::lock_guard<std::mutex> l(m);
@@ -100,10 +108,11 @@ TEST(Sequencer, ModeTwoRunYieldsOneFramePerFrameStep) {
     EXPECT_GT(valid, im.width * im.height / 2) << "frame " << i;
   }
   // Frame k was taken still at the commanded position: 2 frames at 0, then one per 10 mm step
-  // (tolerance: the board's position resolution, see pos_tol_m).
+  // (tolerance: the board's position resolution, see pos_tol_m). The carriage position at a
+  // frame is the last state stamped at or before the frame's stamp (camera time = grab time).
   for (int i = 0; i < expected_frames; ++i) {
     const double want = i < 2 ? 0.0 : (i - 1) * step_m;
-    EXPECT_NEAR(L.pos_at_frame_m[i], want, pos_tol_m) << "frame " << i;
+    EXPECT_NEAR(L.posAt(L.images[i].header.stamp), want, pos_tol_m) << "frame " << i;
   }
 }
 
