@@ -62,8 +62,13 @@ class TumSource : public FrameSource {
 
 class RenderSource : public FrameSource {
  public:
-  RenderSource(const std::string& name, const sim::NoiseConfig& noise, std::uint64_t seed)
-      : run_(sim::makeRun(name)), noise_(noise), seed_(seed) {}
+  // The run is rendered over `range` (--d-min/--d-max), the range a real sensor would be set to:
+  // returns outside it are dropped before the noise is applied, as the camera driver would.
+  RenderSource(const std::string& name, const sim::NoiseConfig& noise, std::uint64_t seed,
+               const DepthRange& range)
+      : run_(sim::makeRun(name)), noise_(noise), seed_(seed) {
+    run_.range = range;
+  }
   std::size_t size() const override { return run_.size(); }
   double stamp(std::size_t i) const override { return run_.stamps_s[i]; }
   DepthImage frame(std::size_t i) const override { return run_.renderFrame(i, noise_, seed_); }
@@ -137,7 +142,7 @@ int main(int argc, char** argv) {
       source = std::make_unique<TumSource>(tum_dir, intrinsics.intrinsics(), depth_scale, range);
     } else {
       auto r = std::make_unique<RenderSource>(
-          render_name, sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name)), seed);
+          render_name, sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name)), seed, range);
       rendered = r.get();
       source = std::move(r);
     }

@@ -381,3 +381,44 @@ TEST(Fusion, BoundedRegionDropsReturnsOutside) {
                 Eigen::Isometry3d::Identity());
   EXPECT_EQ(st.outside_region, st.valid_pixels);
 }
+
+TEST(Fusion, MaxFuseDepthLeavesDeeperReturnsOut) {
+  // A plane tilted towards the camera: depth from 1.03 m (bottom rows) to 2.76 m (top rows).
+  const DepthImage d = planeDepth(kK, Eigen::Vector3d(0, 1, 1).normalized(), 1.5 / std::sqrt(2.0));
+  int deeper = 0, valid = 0;
+  for (float z : d.data) valid += z > 0, deeper += z > 1.6f;
+  ASSERT_GT(deeper, valid / 4);
+  ASSERT_LT(deeper, 3 * valid / 4);
+  MapConfig cfg = unboundedConfig(0.01, UpdateModel::kProbabilistic);
+  cfg.carve_stride_px = 1;
+  cfg.max_fuse_depth_m = 1.6;
+  VoxelMap map(cfg);
+  const FuseStats st = map.fuse(d, kK, Eigen::Isometry3d::Identity());
+  EXPECT_EQ(st.valid_pixels, valid);
+  EXPECT_EQ(st.beyond_fuse_depth, deeper);
+  EXPECT_EQ(st.fused_pixels, valid - deeper);
+  // Nothing deeper than the limit is occupied, nor observed free by carving.
+  double deepest = 0.0;
+  map.forEachOccupied([&](const VoxelKey& k) { deepest = std::max(deepest, map.centerOf(k).z()); });
+  EXPECT_GT(deepest, 1.5);
+  EXPECT_LT(deepest, 1.6 + 0.01);
+  const std::size_t occupied = map.occupiedCount(), observed = map.observedCount();
+  // A wall wholly beyond the limit changes nothing and is not an error.
+  const FuseStats far = map.fuse(planeDepth(kK, Eigen::Vector3d::UnitZ(), 3.0), kK,
+                                 Eigen::Isometry3d::Identity());
+  EXPECT_EQ(far.beyond_fuse_depth, far.valid_pixels);
+  EXPECT_EQ(far.hit_updates + far.miss_updates, 0);
+  EXPECT_EQ(map.occupiedCount(), occupied);
+  EXPECT_EQ(map.observedCount(), observed);
+  // Without the limit the same wall is mapped.
+  VoxelMap all(unboundedConfig(0.01, UpdateModel::kProbabilistic));
+  EXPECT_GT(all.fuse(planeDepth(kK, Eigen::Vector3d::UnitZ(), 3.0), kK,
+                     Eigen::Isometry3d::Identity()).hit_updates, 0);
+  cfg.max_fuse_depth_m = -1.0;
+  try {
+    VoxelMap bad(cfg);
+    ADD_FAILURE() << "a negative max_fuse_depth_m was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("max_fuse_depth_m"), std::string::npos) << e.what();
+  }
+}

@@ -12,6 +12,7 @@
 #include <rosbag/view.h>
 #include <sensor_msgs/Image.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -25,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "../shared_data.hpp"
@@ -451,4 +453,37 @@ TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
     EXPECT_LT((a[i].T_W_C.translation() - b[i].T_W_C.translation()).norm(), 2e-6) << i;
     EXPECT_LT((a[i].T_W_C.linear() - b[i].T_W_C.linear()).norm(), 1e-7) << i;
   }
+}
+
+// track_sequence --render renders over --d-min/--d-max, as a camera driver set to that range
+// would deliver: the map of the chair run's still frames (camera at rest) with --d-max 2.5 holds
+// no voxel deeper than 2.5 m along the optical axis, while the default range (4 m) maps the room
+// behind the chair to its far wall, 3.2 m away. (Before 2026-12-04 the range was applied to TUM
+// input only.)
+TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
+  TmpDir out;
+  // Depth along the start camera's optical axis of every occupied voxel of a map file.
+  auto depths = [&](const std::string& extra) {
+    const std::string bt = out.path + "/m.bt", gt = out.path + "/gt.txt";
+    const ToolRun r = tool_test::runTool(
+        TRACK_SEQUENCE,
+        "--render xtest1_05_chair --frames 3 --map " + bt + " --gt-out " + gt + " " + extra,
+        out.path);
+    EXPECT_EQ(r.rc, 0) << r.output;
+    std::vector<double> z;
+    const Trajectory truth = readTumTrajectory(gt);
+    if (truth.empty()) return z;
+    const VoxelMap map{MapConfig{}};
+    const Eigen::Isometry3d C_W = truth.front().T_W_C.inverse();
+    for (const VoxelKey& k : map.loadOccupiedKeys(bt)) z.push_back((C_W * map.centerOf(k)).z());
+    return z;
+  };
+  const std::vector<double> full = depths(""), near = depths("--d-max 2.5");
+  ASSERT_FALSE(full.empty());
+  ASSERT_FALSE(near.empty());
+  const double far_full = *std::max_element(full.begin(), full.end());
+  const double far_near = *std::max_element(near.begin(), near.end());
+  EXPECT_GT(far_full, 3.0);                // the default range reaches the far wall (3.2 m)
+  EXPECT_LT(far_near, 2.5 + 0.0087);       // half a voxel diagonal beyond the range at most
+  EXPECT_LT(near.size(), full.size() / 2) << near.size() << " of " << full.size();
 }

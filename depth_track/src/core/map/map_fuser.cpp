@@ -109,7 +109,7 @@ struct FrameRays {
 // Pass 1: one hit per voxel holding a return. Consecutive pixels often fall into one voxel; the
 // last key short-cuts them. Kept out of line (as is carve()) so each loop gets the registers.
 __attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& depth,
-                                        const FrameRays& fr, FuseStats& st) {
+                                        const FrameRays& fr, float z_max, FuseStats& st) {
   const int w = depth.width, h = depth.height;
   int last[3] = {std::numeric_limits<int>::min(), 0, 0};
   Chunk* chunk = nullptr;
@@ -139,6 +139,10 @@ __attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& dep
       // A return is finite and positive; counted here rather than in a separate pass.
       if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity())) continue;
       ++st.valid_pixels;
+      if (z > z_max) {
+        ++st.beyond_fuse_depth;
+        continue;
+      }
       const int x = kx[u], y = ky[u], zz = kz[u];
       if (x == last[0] && y == last[1] && zz == last[2]) {
         ++st.fused_pixels;
@@ -192,7 +196,7 @@ __attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& dep
 // row of rays is walked first (fetching the voxels' lines), then its misses are applied.
 __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
                                      const FrameRays& fr, const Eigen::Isometry3d& T_W_C,
-                                     int stride, double margin_m, FuseStats& st) {
+                                     int stride, double margin_m, double z_max, FuseStats& st) {
   const int w = depth.width, h = depth.height;
   const int phase = static_cast<int>(m.frame % static_cast<std::uint32_t>(stride * stride));
   const int ou = phase % stride, ov = phase / stride;
@@ -212,7 +216,7 @@ __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
     for (int u = ou; u < w; u += stride) {
       const double z = row[u];
       // As in the hit pass, only a finite positive depth is a return (a ray to +inf never ends).
-      if (!(z > 0.0) || !(z < std::numeric_limits<double>::infinity())) continue;
+      if (!(z > 0.0) || !(z < std::numeric_limits<double>::infinity()) || z > z_max) continue;
       // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
       const Eigen::Vector3d d = R * Eigen::Vector3d(fr.xu[u], fr.yv[v], 1.0);
       const double t_end = z - margin_m / d.norm();  // margin metres along the ray
@@ -267,15 +271,17 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   fr.Rs = (T_W_C.linear() * m.inv_s).cast<float>();
   fr.ts = (T_W_C.translation() * m.inv_s).cast<float>();
 
-  fuseHits(m, depth, fr, st);
+  const MapConfig& config = map_.config();
+  const double z_max = config.max_fuse_depth_m > 0.0 ? config.max_fuse_depth_m
+                                                     : std::numeric_limits<double>::infinity();
+  fuseHits(m, depth, fr, static_cast<float>(z_max), st);
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
     throw DepthInputError("fuse: depth frame has no valid return");
   }
-  const MapConfig& config = map_.config();
   if (config.model == UpdateModel::kProbabilistic)
-    carve(m, depth, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, st);
+    carve(m, depth, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, z_max, st);
   ++map_.frames_fused_;
   st.ms = msSince(t_start);
   timing_.add(st.ms);

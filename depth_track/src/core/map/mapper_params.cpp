@@ -43,6 +43,9 @@ std::vector<MapperParamSpec> makeParams() {
                   [](MapperConfig& c) -> int& { return c.map.carve_stride_px; }));
   p.push_back(num("carve_margin", "m", "stop carving this far in front of a return",
                   [](MapperConfig& c) -> double& { return c.map.carve_margin_m; }));
+  p.push_back(num("max_fuse_depth", "m",
+                  "fuse (and carve) returns only up to this depth; 0 = the whole depth range",
+                  [](MapperConfig& c) -> double& { return c.map.max_fuse_depth_m; }));
   p.push_back(num("flush_every", "frames", "frames between OcTree flushes (0 = when saving)",
                   [](MapperConfig& c) -> int& { return c.flush_every; }));
   // ---- ray-cast range (virtual images) ----

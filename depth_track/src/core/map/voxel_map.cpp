@@ -63,6 +63,8 @@ std::vector<std::string> MapConfig::validate() const {
   if (carve_stride_px < 1 || carve_stride_px > 64) p.push_back("carve_stride_px must be in 1..64");
   if (!(std::isfinite(carve_margin_m) && carve_margin_m >= 0.0))
     p.push_back("carve_margin_m must be >= 0 m");
+  if (!(std::isfinite(max_fuse_depth_m) && max_fuse_depth_m >= 0.0))
+    p.push_back("max_fuse_depth_m must be >= 0 m (0 = no limit)");
   return p;
 }
 

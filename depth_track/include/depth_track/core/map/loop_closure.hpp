@@ -187,9 +187,9 @@ class LoopCloser {
   std::deque<PendingFrame> pending_;
   CellCloud scratch_;  ///< a pending frame's cells as integrate() takes them
 
-  /// The frame at the cast resolution, reduced with config.pca (grazing cells left out).
   /// The PCA config at the cast resolution (cell_size divided by raycast_downsample).
   PcaConfig castPca() const;
+  /// The frame at the cast resolution, reduced with config.pca (grazing cells left out).
   CellCloud reduceFrame(const DepthImage& current) const;
   // Each stage fills its fields of `r` and returns why the attempt stops there (empty: go on).
   /// The ray cast at T_W_C reduced to cells (kRaycast's model).

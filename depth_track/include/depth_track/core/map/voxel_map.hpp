@@ -79,6 +79,11 @@ struct MapConfig {
   /// revisit test accepted a bad correction (max error 32 -> 66 mm), so 8 stays the default.
   int carve_stride_px = 8;
   double carve_margin_m = 0.01;  ///< stop carving this far in front of a return (noise), m
+  /// Returns deeper than this along the optical axis are neither fused nor carved along, metres
+  /// (0 = every return of the depth range). The tracker still uses them: a D435's far returns
+  /// carry centimetres of noise that spread each wall over a thick shell of voxels and cost most
+  /// of its fusion time, yet the far walls are what pins its pose (docs/mapping.md, Speed).
+  double max_fuse_depth_m = 0.0;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -89,6 +94,7 @@ struct FuseStats {
   int valid_pixels = 0;       ///< pixels with a return
   int fused_pixels = 0;       ///< returns inside the region that updated (or re-hit) a voxel
   int outside_region = 0;     ///< returns outside the bounded region (or the key range)
+  int beyond_fuse_depth = 0;  ///< returns deeper than max_fuse_depth_m (not fused)
   int hit_updates = 0;        ///< voxels updated as hit
   int miss_updates = 0;       ///< voxels updated as miss (carving)
   int carve_rays = 0;         ///< rays walked for carving
