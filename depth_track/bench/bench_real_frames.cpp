@@ -75,9 +75,9 @@ const Sequence& sequence() {
 // One iteration tracks every loaded frame after the first with a tracker made (and noise-adapted
 // on frame 0) outside the clock. per_frame is the mean CPU time per frame (one thread);
 // frame_ms_median (the target's figure) and the stage counters are medians, over the last
-// iteration's frames, of FrameStatus's wall-clock times. The argument: 0 = the defaults, 1 = the
-// registration model on (model: true; its fusion and keyframe refinement are in the frame's
-// total, neither in reduce nor register).
+// iteration's frames, of FrameStatus's wall-clock times. The argument: 1 = the defaults (the
+// registration model on since 2026-12-03; its fusion and keyframe refinement are in the frame's
+// total, neither in reduce nor register), 0 = the defaults with the model off.
 void BM_RealTrackerFrames(benchmark::State& state) {
   const Sequence& s = sequence();
   if (!s.error.empty()) {
