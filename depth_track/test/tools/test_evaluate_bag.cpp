@@ -484,6 +484,8 @@ TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
   const double far_full = *std::max_element(full.begin(), full.end());
   const double far_near = *std::max_element(near.begin(), near.end());
   EXPECT_GT(far_full, 3.0);                // the default range reaches the far wall (3.2 m)
-  EXPECT_LT(far_near, 2.5 + 0.0087);       // half a voxel diagonal beyond the range at most
+  // A voxel's centre lies at most half a 5 mm voxel's diagonal (4.3 mm) deeper than the return in
+  // it; 0.7 mm more for the tracked pose of the still frames (measured 2.5025 m).
+  EXPECT_LT(far_near, 2.5 + 0.005);
   EXPECT_LT(near.size(), full.size() / 2) << near.size() << " of " << full.size();
 }

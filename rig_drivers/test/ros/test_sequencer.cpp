@@ -52,11 +52,13 @@ struct Listener {
     std::lock_guard<std::mutex> l(m);
     if (r.outgoing && r.bytes.size() > 5 && r.bytes[5] == 0x10) ++track_moves_sent;  // kTrackMove
   }
-  // Position in the last state stamped at or before t (-1 if none).
+  // Position in the latest state stamped at or before t (-1 if none), whatever order the states
+  // arrived in.
   double posAt(const ros::Time& t) const {
     double pos = -1;
+    ros::Time latest;
     for (const auto& st : states)
-      if (st.first <= t) pos = st.second;
+      if (st.first <= t && st.first >= latest) latest = st.first, pos = st.second;
     return pos;
   }
   std::string getStatus() {
