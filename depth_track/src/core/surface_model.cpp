@@ -163,26 +163,48 @@ void SurfaceModel::integrate(const CellCloud& cells, const Eigen::Isometry3d& T_
     const Eigen::Vector3f n = R * c.normal_C;
     if (p.allFinite() && n.allFinite()) frame_cells_.push_back({keyOf(p), p, n});
   }
-  std::sort(frame_cells_.begin(), frame_cells_.end(),
-            [](const CellSample& a, const CellSample& b) { return a.key < b.key; });
+  // Grouped without sorting (a sort of the ~8000 samples cost about 0.3 ms of fr1/xyz's 4.7 ms
+  // frame): a per-frame table maps each key to its first sample, which sums the rest, and the
+  // groups are compacted to the front in the order first seen.
+  {
+    std::size_t cap = 16;
+    while (cap < 2 * frame_cells_.size()) cap <<= 1;
+    group_slot_.assign(cap, -1);
+    group_count_.assign(frame_cells_.size(), 0);
+    std::size_t m = 0;
+    for (std::size_t i = 0; i < frame_cells_.size(); ++i) {
+      const std::uint64_t k = frame_cells_[i].key;
+      std::size_t h = (k * 0x9E3779B97F4A7C15ull) >> 40;
+      for (;; ++h) {
+        std::int32_t& s = group_slot_[h & (cap - 1)];
+        if (s < 0) {
+          s = static_cast<std::int32_t>(m);
+          frame_cells_[m] = frame_cells_[i];
+          group_count_[m] = 1;
+          ++m;
+          break;
+        }
+        if (frame_cells_[s].key == k) {
+          frame_cells_[s].p += frame_cells_[i].p;
+          frame_cells_[s].n += frame_cells_[i].n;
+          ++group_count_[s];
+          break;
+        }
+      }
+    }
+    frame_cells_.resize(m);
+  }
   // Grow before the loop (at most one new voxel per sample), so the slots prefetched below stay
   // where they are: the table is far larger than the cache, and each voxel is a random access.
   while (10 * (size_ + frame_cells_.size()) > 7 * keys_.size()) grow();
   constexpr std::size_t kAhead = 16;  // samples
   for (std::size_t j = 0; j < std::min(kAhead, frame_cells_.size()); ++j)
     prefetchSlot(frame_cells_[j].key);
-  for (std::size_t i = 0; i < frame_cells_.size();) {
+  for (std::size_t i = 0; i < frame_cells_.size(); ++i) {
     if (i + kAhead < frame_cells_.size()) prefetchSlot(frame_cells_[i + kAhead].key);
     const std::uint64_t key = frame_cells_[i].key;
-    Eigen::Vector3f p = Eigen::Vector3f::Zero(), n = Eigen::Vector3f::Zero();
-    const std::size_t first = i;
-    for (; i < frame_cells_.size() && frame_cells_[i].key == key; ++i) {
-      p += frame_cells_[i].p;
-      n += frame_cells_[i].n;
-    }
-    const float count = static_cast<float>(i - first);
-    p /= count;
-    n /= count;
+    const float count = static_cast<float>(group_count_[i]);
+    Eigen::Vector3f p = frame_cells_[i].p / count, n = frame_cells_[i].n / count;
     Voxel& v = findOrInsert(key);
     if (v.weight > 0 && n[0] * v.normal[0] + n[1] * v.normal[1] + n[2] * v.normal[2] <= 0.f)
       continue;  // the other side of a thin surface: not this voxel's plane

@@ -129,6 +129,10 @@ class SurfaceModel {
     Eigen::Vector3f p, n;
   };
   std::vector<CellSample> frame_cells_;
+  /// integrate()'s per-frame grouping: an open-addressing table of the frame's voxel keys (the
+  /// index of the key's first sample in frame_cells_, -1 = empty), and each group's cell count.
+  std::vector<std::int32_t> group_slot_;
+  std::vector<std::uint32_t> group_count_;
 };
 
 }  // namespace depth_track
