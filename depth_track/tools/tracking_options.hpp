@@ -116,6 +116,20 @@ inline void addIntrinsicsOptions(CLI::App& app, IntrinsicsOptions& k, const std:
   app.add_option("--cy", k.cy, "principal point y, px (" + when + ")");
 }
 
+/// Declares every tracker parameter (declared once in tracker_params) as an option, and
+/// --config; TrackingOptions::trackerConfig() resolves them.
+inline void addTrackerParamOptions(CLI::App& app, TrackingOptions& o) {
+  app.add_option("--config", o.config_path,
+                 "YAML file of tracker parameters (see config/tracker.yaml)");
+  const TrackerConfig tracker_defaults;
+  for (const ParamSpec& p : trackerParams()) {
+    const std::string help = p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
+    o.tracker_opts[p.name] = app.add_option("--" + dashed(p.name), o.tracker_values[p.name], help)
+                                 ->default_str(p.get(tracker_defaults))
+                                 ->group("Tracker");
+  }
+}
+
 /// Declares the shared options on `app`, bound to `o` (which must outlive the parse).
 inline void addTrackingOptions(CLI::App& app, TrackingOptions& o) {
   app.add_option("--d-min", o.range.min_m, "nearest valid depth, m")->capture_default_str();
@@ -125,20 +139,11 @@ inline void addTrackingOptions(CLI::App& app, TrackingOptions& o) {
                  "frame: z = (z - offset_m) / scale");
   app.add_option("--threads", o.threads, "worker threads for prefilter and PCA (1 = one core)")
       ->capture_default_str();
-  app.add_option("--config", o.config_path,
-                 "YAML file of tracker parameters (see config/tracker.yaml)");
   app.add_option("--initial-pose", o.initial_pose,
                  "first pose 'tx ty tz qx qy qz qw' (default identity; evaluate_bag: the "
                  "bag's camera mount from /tf_static when it records one)");
   app.add_option("--map", o.map_path, "fuse the frames into a voxel map and save it here (.bt)");
-  // Every tracker parameter, declared once in tracker_params.
-  const TrackerConfig tracker_defaults;
-  for (const ParamSpec& p : trackerParams()) {
-    const std::string help = p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
-    o.tracker_opts[p.name] = app.add_option("--" + dashed(p.name), o.tracker_values[p.name], help)
-                                 ->default_str(p.get(tracker_defaults))
-                                 ->group("Tracker");
-  }
+  addTrackerParamOptions(app, o);
   // Every mapper parameter (map, ray cast, loop closure), declared once in mapper_params. Any of
   // --map and --loop-closure on builds the map.
   const MapperConfig mapper_defaults;

@@ -22,6 +22,7 @@
 #include <functional>
 #include <regex>
 #include <set>
+#include <cctype>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -33,8 +34,8 @@
 #include "tool_test.hpp"
 
 #if !defined(EVALUATE_BAG) || !defined(MAKE_SCENARIO_BAG) || !defined(TUM_TO_BAG) || \
-    !defined(TRACK_SEQUENCE)
-#error "EVALUATE_BAG, MAKE_SCENARIO_BAG, TUM_TO_BAG and TRACK_SEQUENCE must name the tools"
+    !defined(TRACK_SEQUENCE) || !defined(REGISTRATION_BASIN)
+#error "EVALUATE_BAG, MAKE_SCENARIO_BAG, TUM_TO_BAG, TRACK_SEQUENCE, REGISTRATION_BASIN: tool paths"
 #endif
 
 namespace fs = std::filesystem;
@@ -488,4 +489,39 @@ TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
   // it; 0.7 mm more for the tracked pose of the still frames (measured 2.5025 m).
   EXPECT_LT(far_near, 2.5 + 0.005);
   EXPECT_LT(near.size(), full.size() / 2) << near.size() << " of " << full.size();
+}
+
+// registration_basin on the noise-free Hall1 start: one basin (the zero guess and the true one
+// converge to the same translation, near the truth: measured 28.66 / 28.68 mm of 30 along the
+// corridor), one CSV row per frame and guess; a reference outside the run is refused by name.
+TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
+  TmpDir out;
+  const ToolRun r = tool_test::runTool(
+      REGISTRATION_BASIN, "--render hall1 --noise none --ref 0 --frames 5 --guesses 0,1", out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  std::vector<std::vector<double>> rows;
+  std::istringstream lines(r.output);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.empty() || !std::isdigit(static_cast<unsigned char>(line[0]))) continue;
+    std::vector<double> v;
+    std::istringstream fields(line);
+    for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
+    rows.push_back(v);
+  }
+  ASSERT_EQ(rows.size(), 2u) << r.output;
+  for (const auto& v : rows) {
+    ASSERT_EQ(v.size(), 11u);
+    EXPECT_EQ(v[0], 5);
+    EXPECT_NEAR(v[4], 30.0, 1e-6);  // the truth: at rest to frame 2, then 10 mm a frame along z
+    EXPECT_LT(v[8], 3.0) << "guess " << v[1] << ": converged " << v[5] << " " << v[6] << " "
+                         << v[7] << " mm";
+  }
+  EXPECT_EQ(rows[0][1], 0.0);
+  EXPECT_EQ(rows[1][1], 1.0);
+  EXPECT_NEAR(rows[0][7], rows[1][7], 0.5);  // one basin: the guess does not decide
+
+  const ToolRun bad =
+      tool_test::runTool(REGISTRATION_BASIN, "--render hall1 --ref 5000 --frames 3", out.path);
+  EXPECT_NE(bad.rc, 0);
+  EXPECT_NE(bad.output.find("--ref 5000"), std::string::npos) << bad.output;
 }
