@@ -87,7 +87,7 @@ int main(int argc, char** argv) {
     const CellCloud reference = cellsOf(ref_depth);
     std::printf("reference frame %d: %zu cells\n", ref, reference.cells.size());
     std::printf("frame,guess_fraction,true_x_mm,true_y_mm,true_z_mm,est_x_mm,est_y_mm,est_z_mm,"
-                "error_mm,iterations,pairs\n");
+                "error_mm,iterations,pairs,residual_rms_mm\n");
     for (int k : frames) {
       const CellCloud current = cellsOf(run.renderFrame(k, noise, seed));
       const Eigen::Isometry3d truth = run.T_W_C[ref].inverse() * run.T_W_C[k];
@@ -97,8 +97,9 @@ int main(int argc, char** argv) {
         guess.translation() = g * truth.translation();
         const RegistrationResult r = registerCells(reference, current, run.intrinsics, guess, reg);
         const Eigen::Vector3d e = 1e3 * r.T_ref_cur.translation();
-        std::printf("%d,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%d,%d\n", k, g, t.x(), t.y(),
-                    t.z(), e.x(), e.y(), e.z(), (e - t).norm(), r.iterations, r.matches);
+        std::printf("%d,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%.2f,%d,%d,%.3f\n", k, g, t.x(), t.y(),
+                    t.z(), e.x(), e.y(), e.z(), (e - t).norm(), r.iterations, r.matches,
+                    1e3 * r.error_rms_m);
       }
     }
   } catch (const std::exception& e) {

@@ -510,7 +510,7 @@ TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
   }
   ASSERT_EQ(rows.size(), 2u) << r.output;
   for (const auto& v : rows) {
-    ASSERT_EQ(v.size(), 11u);
+    ASSERT_EQ(v.size(), 12u);
     EXPECT_EQ(v[0], 5);
     EXPECT_NEAR(v[4], 30.0, 1e-6);  // the truth: at rest to frame 2, then 10 mm a frame along z
     EXPECT_LT(v[8], 3.0) << "guess " << v[1] << ": converged " << v[5] << " " << v[6] << " "
