@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "depth_track/core/cells.hpp"
+#include "simd4.hpp"
 
 namespace depth_track {
 
@@ -105,14 +106,122 @@ Planarity planarityFromInvariants(const Eigen::Matrix3d& S) {
   return Planarity::kUndecided;
 }
 
-// Reduces one grid cell in a single pass over its pixels: sums of vertices taken relative to
-// the first valid vertex (so the covariance does not cancel metre-sized offsets), and the
-// occluding-edge test against the left and upper neighbours. u_ray/v_ray hold (u - cx)/fx per
-// column and (v - cy)/fy per row.
-CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float* v_ray, int gx,
-                       int gy, const PcaConfig& config, int min_valid, Cell* cell) {
+// One cell's pass over its pixels: sums of vertices taken relative to the first valid vertex in
+// float (so the covariance does not cancel metre-sized offsets: patch extents are centimetres,
+// so it keeps ~1e-9 m^2 absolute precision), and the depth range that gates the edge test.
+struct CellSums {
+  int count = 0, missing = 0;
+  float ox = 0, oy = 0, oz = 0;
+  float sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
+  float z_lo = std::numeric_limits<float>::max(), z_hi = 0.0f;
+};
+
+// The pass for one cell. u_ray/v_ray hold (u - cx)/fx per column and (v - cy)/fy per row. False
+// as soon as more than max_missing pixels have no return (the cell is invalid).
+bool sumCell(const DepthImage& depth, const float* u_ray, const float* v_ray, int gx, int gy,
+             int n, int max_missing, CellSums* out) {
+  const int u0 = gx * n, v0 = gy * n;
+  CellSums& s = *out;
+  s = CellSums();
+  for (int v = v0; v < v0 + n; ++v) {
+    const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
+    const float vr = v_ray[v];
+    for (int u = u0; u < u0 + n; ++u) {
+      const float z = row[u];
+      if (!(z > 0.0f)) {
+        if (++s.missing > max_missing) return false;
+        continue;
+      }
+      const float x = u_ray[u] * z, y = vr * z;
+      if (s.count == 0) {
+        s.ox = x;
+        s.oy = y;
+        s.oz = z;
+      }
+      s.z_lo = std::min(s.z_lo, z);
+      s.z_hi = std::max(s.z_hi, z);
+      const float dx = x - s.ox, dy = y - s.oy, dz = z - s.oz;
+      s.sx += dx;
+      s.sy += dy;
+      s.sz += dz;
+      s.sxx += dx * dx;
+      s.sxy += dx * dy;
+      s.sxz += dx * dz;
+      s.syy += dy * dy;
+      s.syz += dy * dz;
+      s.szz += dz * dz;
+      ++s.count;
+    }
+  }
+  return true;
+}
+
+// The same pass for the four cells gx..gx+3 of a grid row at once, one cell per lane: every
+// lane takes its pixels in sumCell's order and does sumCell's arithmetic on them, so the sums
+// are sumCell's to the bit (a pixel without a return adds +0, which changes no sum). It does not
+// stop early; a cell with too many missing pixels shows it in `missing`.
+void sumFourCells(const DepthImage& depth, const float* u_ray, const float* v_ray, int gx, int gy,
+                  int n, CellSums out[4]) {
+  using simd4::splat;
+  using simd4::V4f;
+  using simd4::V4i;
+  const int b = gx * n, v0 = gy * n;
+  V4f ur[32];  // cell sizes are at most 32 px (PcaConfig::validate)
+  for (int du = 0; du < n; ++du)
+    ur[du] = V4f{u_ray[b + du], u_ray[b + n + du], u_ray[b + 2 * n + du], u_ray[b + 3 * n + du]};
+  const V4f zero = splat(0.0f);
+  V4i count = {0, 0, 0, 0}, missing = {0, 0, 0, 0};
+  V4f ox = zero, oy = zero, oz = zero;
+  V4f sx = zero, sy = zero, sz = zero, sxx = zero, sxy = zero, sxz = zero, syy = zero,
+      syz = zero, szz = zero;
+  V4f z_lo = splat(std::numeric_limits<float>::max()), z_hi = zero;
+  for (int v = v0; v < v0 + n; ++v) {
+    const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width + b;
+    const V4f vr = splat(v_ray[v]);
+    for (int du = 0; du < n; ++du) {
+      const V4f z = {row[du], row[n + du], row[2 * n + du], row[3 * n + du]};
+      const V4i valid = z > 0.0f;  // false for NaN, as in sumCell
+      missing -= ~valid;
+      const V4f x = ur[du] * z, y = vr * z;
+      const V4i first = valid & (count == 0);
+      ox = first ? x : ox;
+      oy = first ? y : oy;
+      oz = first ? z : oz;
+      z_lo = (valid & (z < z_lo)) ? z : z_lo;  // std::min(z_lo, z)
+      z_hi = (valid & (z_hi < z)) ? z : z_hi;  // std::max(z_hi, z)
+      const V4f dx = valid ? x - ox : zero, dy = valid ? y - oy : zero,
+                dz = valid ? z - oz : zero;
+      sx += dx;
+      sy += dy;
+      sz += dz;
+      sxx += dx * dx;
+      sxy += dx * dy;
+      sxz += dx * dz;
+      syy += dy * dy;
+      syz += dy * dz;
+      szz += dz * dz;
+      count -= valid;
+    }
+  }
+  for (int k = 0; k < 4; ++k) {
+    CellSums& s = out[k];
+    s.count = count[k];
+    s.missing = missing[k];
+    s.ox = ox[k], s.oy = oy[k], s.oz = oz[k];
+    s.sx = sx[k], s.sy = sy[k], s.sz = sz[k];
+    s.sxx = sxx[k], s.sxy = sxy[k], s.sxz = sxz[k];
+    s.syy = syy[k], s.syz = syz[k], s.szz = szz[k];
+    s.z_lo = z_lo[k], s.z_hi = z_hi[k];
+  }
+}
+
+// A cell from its sums: the occluding-edge test against the left and upper neighbours (read
+// from `depth`), then the mean, covariance and normal.
+CellOutcome finishCell(const DepthImage& depth, int gx, int gy, const PcaConfig& config,
+                       int min_valid, const CellSums& s, Cell* cell) {
   const int n = config.cell_size;
   const int u0 = gx * n, v0 = gy * n;
+  if (s.missing > n * n - min_valid) return CellOutcome::kInvalid;
   const bool edge_test = config.edge_jump_rel > 0.0;
   const float rel = static_cast<float>(config.edge_jump_rel);
   const float floor_m = static_cast<float>(config.edge_jump_min_m);
@@ -123,45 +232,12 @@ CellOutcome reduceCell(const DepthImage& depth, const float* u_ray, const float*
   auto jump = [&](float a, float b) {
     return a > 0.0f && b > 0.0f && std::abs(a - b) > threshold(std::min(a, b));
   };
-  const int max_missing = n * n - min_valid;
-  int count = 0, missing = 0;
-  // Sums relative to the first valid vertex in float (patch extents are centimetres, so the
-  // covariance keeps ~1e-9 m^2 absolute precision); the depth range gates the edge test.
-  float ox = 0, oy = 0, oz = 0;
-  float sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0, szz = 0;
-  float z_lo = std::numeric_limits<float>::max(), z_hi = 0.0f;
-  for (int v = v0; v < v0 + n; ++v) {
-    const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
-    const float vr = v_ray[v];
-    for (int u = u0; u < u0 + n; ++u) {
-      const float z = row[u];
-      if (!(z > 0.0f)) {
-        if (++missing > max_missing) return CellOutcome::kInvalid;
-        continue;
-      }
-      const float x = u_ray[u] * z, y = vr * z;
-      if (count == 0) {
-        ox = x;
-        oy = y;
-        oz = z;
-      }
-      z_lo = std::min(z_lo, z);
-      z_hi = std::max(z_hi, z);
-      const float dx = x - ox, dy = y - oy, dz = z - oz;
-      sx += dx;
-      sy += dy;
-      sz += dz;
-      sxx += dx * dx;
-      sxy += dx * dy;
-      sxz += dx * dz;
-      syy += dy * dy;
-      syz += dy * dz;
-      szz += dz * dz;
-      ++count;
-    }
-  }
+  const int count = s.count;
+  const float ox = s.ox, oy = s.oy, oz = s.oz;
+  const float sx = s.sx, sy = s.sy, sz = s.sz, sxx = s.sxx, sxy = s.sxy, sxz = s.sxz,
+              syy = s.syy, syz = s.syz, szz = s.szz;
   // Only a cell whose depths spread wider than one edge jump can contain one.
-  if (edge_test && z_hi - z_lo > threshold(z_lo)) {
+  if (edge_test && s.z_hi - s.z_lo > threshold(s.z_lo)) {
     for (int v = v0; v < v0 + n; ++v) {
       const float* row = depth.data.data() + static_cast<std::size_t>(v) * depth.width;
       for (int u = u0; u < u0 + n; ++u) {
@@ -345,10 +421,22 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
       std::max(3, static_cast<int>(std::ceil(config.min_valid_fraction * per_cell - 1e-9)));
 
   // Cells are produced row by row in grid order, so the result is the same for any thread count.
+  const int n = config.cell_size, max_missing = per_cell - min_valid;
   auto reduceRow = [&](int gy, std::vector<Cell>* out, ReductionStats* stats) {
     Cell cell;
+    CellSums sums[4];
     for (int gx = 0; gx < cloud.grid_w; ++gx) {
-      switch (reduceCell(depth, u_ray.data(), v_ray.data(), gx, gy, config, min_valid, &cell)) {
+      // Four cells' sums at a time where four remain in the row; the last few one by one.
+      const int lane = gx % 4;
+      if (lane == 0 && gx + 4 <= cloud.grid_w)
+        sumFourCells(depth, u_ray.data(), v_ray.data(), gx, gy, n, sums);
+      const bool four = gx - lane + 4 <= cloud.grid_w;
+      const bool summed =
+          four || sumCell(depth, u_ray.data(), v_ray.data(), gx, gy, n, max_missing, &sums[0]);
+      const CellOutcome outcome =
+          summed ? finishCell(depth, gx, gy, config, min_valid, sums[four ? lane : 0], &cell)
+                 : CellOutcome::kInvalid;
+      switch (outcome) {
         case CellOutcome::kKept:
           out->push_back(cell);
           break;

@@ -13,6 +13,7 @@
 
 #include "depth_track/core/degeneracy.hpp"
 #include "depth_track/core/se3.hpp"
+#include "simd4.hpp"
 
 namespace depth_track {
 
@@ -109,16 +110,11 @@ Eigen::Isometry3d alignPointToPoint(const std::vector<Eigen::Vector3d>& p,
 
 namespace {
 
-// Four floats (GCC / Clang vector extensions: SSE on x86-64, NEON on ARM), for scoring four
-// association candidates at once.
-typedef float V4f __attribute__((vector_size(16)));
-typedef int V4i __attribute__((vector_size(16)));
-inline V4f splat(float x) { return V4f{x, x, x, x}; }
-inline V4f load4(const float* p) {
-  V4f v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
+// Four floats at a time, for scoring four association candidates at once.
+using simd4::load4;
+using simd4::splat;
+using simd4::V4f;
+using simd4::V4i;
 
 // Current cells moved into the reference frame by the running estimate.
 struct Moved {

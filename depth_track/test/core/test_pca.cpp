@@ -138,6 +138,63 @@ TEST(Pca, ThreadCountDoesNotChangeTheResult) {
   for (std::size_t i = 0; i < a.cells.size(); ++i) ASSERT_EQ(a.cells[i].mean_C, b.cells[i].mean_C);
 }
 
+// Cells are summed four to a lane where four remain in a grid row and one by one after that;
+// both must give the same cells to the bit, pruned for the same reasons. A strip 11 cells wide
+// (8 in lanes, the last 3 one by one) against the same strip with a 12th, empty cell column
+// (all 12 in lanes). The frame has noise, and in the last three columns dense holes, a NaN
+// patch and a depth step, so cells there are kept, invalid, edges, or both of the last two.
+TEST(Pca, FourCellLanesGiveTheSameCellsAsOneByOne) {
+  const DepthImage full =
+      renderPlanes(depth_track::test::cornerRoom(), l515(), Eigen::Isometry3d::Identity());
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.0f, 0.003f);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  DepthImage strip(88, full.height, 0.0f), padded(96, full.height, 0.0f);
+  for (int v = 0; v < strip.height; ++v) {
+    for (int u = 0; u < strip.width; ++u) {
+      float z = full.at(u, v);
+      if (z > 0.0f) z += noise(rng);
+      const bool tail = u >= 64;
+      if (unit(rng) < (tail && v >= 100 && v < 160 ? 0.3f : 0.03f)) z = 0.0f;  // holes
+      if (v >= 200 && v < 212 && u >= 60 && u < 75) z = std::nanf("");         // a NaN patch
+      if (v >= 120 && u >= 66 && u < 80) z *= 0.6f;                             // a depth step
+      strip.at(u, v) = padded.at(u, v) = z;
+    }
+  }
+  PinholeIntrinsics k_strip = l515(), k_padded = l515();  // the same cx: the same rays
+  k_strip.width = 88;
+  k_padded.width = 96;
+  PcaConfig cfg;
+  cfg.cell_size = 8;
+  cfg.normal_radius_cells = 0;  // each cell on its own pixels
+  cfg.min_valid_fraction = 0.75;
+  const CellCloud a = reduceToCells(strip, k_strip, cfg, 1);
+  const CellCloud b = reduceToCells(padded, k_padded, cfg, 1);
+  ASSERT_EQ(a.grid_w, 11);
+  ASSERT_EQ(b.grid_w, 12);
+  int kept_tail = 0;
+  for (int gy = 0; gy < a.grid_h; ++gy) {
+    for (int gx = 0; gx < 11; ++gx) {
+      const int ia = a.grid_index[gy * a.grid_w + gx], ib = b.grid_index[gy * b.grid_w + gx];
+      ASSERT_EQ(ia < 0, ib < 0) << "cell " << gx << ", " << gy;
+      if (ia < 0) continue;
+      kept_tail += gx >= 8;
+      const Cell &ca = a.cells[ia], &cb = b.cells[ib];
+      EXPECT_EQ(ca.n_valid, cb.n_valid);
+      EXPECT_EQ(ca.mean_C, cb.mean_C) << "cell " << gx << ", " << gy;
+      EXPECT_EQ(ca.cov, cb.cov) << "cell " << gx << ", " << gy;
+      EXPECT_EQ(ca.normal_C, cb.normal_C) << "cell " << gx << ", " << gy;
+    }
+  }
+  // The same reasons: the padded strip's extra column is all invalid.
+  EXPECT_EQ(b.stats.pruned_invalid, a.stats.pruned_invalid + a.grid_h);
+  EXPECT_EQ(b.stats.pruned_edge, a.stats.pruned_edge);
+  EXPECT_EQ(b.stats.pruned_degenerate, a.stats.pruned_degenerate);
+  EXPECT_GT(kept_tail, 50);
+  EXPECT_GT(a.stats.pruned_invalid, 10);
+  EXPECT_GT(a.stats.pruned_edge, 10);
+}
+
 TEST(Pca, PooledNormalsAreCloserToTheTruthOnANoisyPlane) {
   // 10 mm depth noise at 2 m (a Kinect-class sensor): per-cell normals of 5x5 px cells scatter by
   // tens of degrees; pooling 5x5 cells gives 25x the support and a much smaller error.
