@@ -158,8 +158,10 @@ bool sumCell(const DepthImage& depth, const float* u_ray, const float* v_ray, in
 
 // The same pass for the four cells gx..gx+3 of a grid row at once, one cell per lane: every
 // lane takes its pixels in sumCell's order and does sumCell's arithmetic on them, so the sums
-// are sumCell's to the bit (a pixel without a return adds +0, which changes no sum). It does not
-// stop early; a cell with too many missing pixels shows it in `missing`.
+// are sumCell's to the bit (a pixel without a return adds +0, which changes no sum). That holds
+// while the compiler fuses multiply-adds in neither path (x86-64 has no FMA in its baseline); a
+// build that fuses them in one path only breaks it, and dt_test_pca says so. It does not stop
+// early; a cell with too many missing pixels shows it in `missing`.
 void sumFourCells(const DepthImage& depth, const float* u_ray, const float* v_ray, int gx, int gy,
                   int n, CellSums out[4]) {
   using simd4::splat;
