@@ -158,14 +158,17 @@ TEST(WholeRun, Room3D435Defaults) {
 // move seed 1's from 26.5 to 42.7 mm. Over seeds 1-8, before / after that change: largest
 // position error 69.9/65.7/87.9/61.4/57.9/1011/98.0/62.1 and 69.9/67.6/87.9/61.4/63.0/1003/98.0/
 // 64.1 mm, end drift 26.5/30.8/17.1/15.7/43.9/990/19.1/22.4 and 42.7/32.0/31.0/13.7/40.3/957/
-// 15.3/39.9 mm. Seed 6 stands still for the first 100 frames on both (docs/tracking.md, "Hall1
-// with D435 noise, seed 6": not solved). The guards catch that failure, not the chaos: 0.5 deg /
-// 100 mm largest error, and an end drift of 60 mm, 1.4x the largest of the seven other seeds
-// (43.9 mm). Seed 1 here: largest errors 0.434 deg, 69.93 mm, end drift 42.72 mm.
+// 15.3/39.9 mm; after it, seeds 9-20: 85.2/62.0/71.6/147.2/71.2/73.2/129.8/73.1/123.1/109.0/1061/
+// 119.7 mm, end drift 43.3/29.0/19.2/141.6/13.6/61.2/120.8/19.5/23.2/46.3/1022/112.8 mm. Seeds 6
+// and 19 stand still at the start (docs/tracking.md, "Hall1 with D435 noise, seed 6": not
+// solved); over the other 18 the largest error spans 61-147 mm, the end drift 14-142 mm and the
+// rotation error reaches 0.450 deg. The guards catch standing still (about 1 m), not the chaos:
+// 1.4x the largest of those 18, 210 mm largest error and 200 mm end drift, and 0.5 deg. Seed 1
+// here: largest errors 0.434 deg, 69.93 mm, end drift 42.72 mm.
 TEST(WholeRun, Hall1D435Defaults) {
   const RunResult r = trackRendered("hall1", TrackerConfig{}, sim::NoiseModel::kD435);
-  expectTrackedWithin(r, 0.5, 100.0);
-  EXPECT_LE(r.errors.end_drift_mm, 60.0);
+  expectTrackedWithin(r, 0.5, 210.0);
+  EXPECT_LE(r.errors.end_drift_mm, 200.0);
 }
 
 // The same with the registration model off (model: false, frame-to-keyframe on the frames' own
