@@ -493,7 +493,8 @@ TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
 
 // registration_basin on the noise-free Hall1 start: one basin (the zero guess and the true one
 // converge to the same translation, near the truth: measured 28.66 / 28.68 mm of 30 along the
-// corridor), one CSV row per frame and guess; a reference outside the run is refused by name.
+// corridor), one CSV row per frame and guess; the guesses and tracker options are applied; a
+// reference outside the run is refused by name.
 TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
   TmpDir out;
   const ToolRun r = tool_test::runTool(
@@ -519,6 +520,27 @@ TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
   EXPECT_EQ(rows[0][1], 0.0);
   EXPECT_EQ(rows[1][1], 1.0);
   EXPECT_NEAR(rows[0][7], rows[1][7], 0.5);  // one basin: the guess does not decide
+
+  // The guesses and the tracker options reach the registration: one iteration from zero motion
+  // stops short of the truth (measured 40.4 of 60 mm at frame 8), one from the truth stays there.
+  const ToolRun one = tool_test::runTool(
+      REGISTRATION_BASIN,
+      "--render hall1 --noise none --ref 0 --frames 8 --guesses 0,1 --max-iterations 1", out.path);
+  ASSERT_EQ(one.rc, 0) << one.output;
+  std::vector<double> z;
+  std::istringstream one_lines(one.output);
+  for (std::string line; std::getline(one_lines, line);) {
+    if (line.rfind("8,", 0) != 0) continue;
+    std::vector<std::string> f;
+    std::istringstream fields(line);
+    for (std::string x; std::getline(fields, x, ',');) f.push_back(x);
+    ASSERT_EQ(f.size(), 12u) << line;
+    EXPECT_EQ(f[9], "1") << line;  // iterations
+    z.push_back(std::stod(f[7]));
+  }
+  ASSERT_EQ(z.size(), 2u) << one.output;
+  EXPECT_LT(z[0], 55.0);
+  EXPECT_GT(z[1], 58.0);
 
   const ToolRun bad =
       tool_test::runTool(REGISTRATION_BASIN, "--render hall1 --ref 5000 --frames 3", out.path);
