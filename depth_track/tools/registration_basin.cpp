@@ -12,6 +12,7 @@
 //   registration_basin --render hall1 --noise d435 --seed 6 --ref 0 --frames 3,5,8
 #include <CLI/CLI.hpp>
 
+#include <cmath>
 #include <cstdio>
 #include <exception>
 #include <string>

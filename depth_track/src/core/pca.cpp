@@ -234,10 +234,6 @@ CellOutcome finishCell(const DepthImage& depth, int gx, int gy, const PcaConfig&
   auto jump = [&](float a, float b) {
     return a > 0.0f && b > 0.0f && std::abs(a - b) > threshold(std::min(a, b));
   };
-  const int count = s.count;
-  const float ox = s.ox, oy = s.oy, oz = s.oz;
-  const float sx = s.sx, sy = s.sy, sz = s.sz, sxx = s.sxx, sxy = s.sxy, sxz = s.sxz,
-              syy = s.syy, syz = s.syz, szz = s.szz;
   // Only a cell whose depths spread wider than one edge jump can contain one.
   if (edge_test && s.z_hi - s.z_lo > threshold(s.z_lo)) {
     for (int v = v0; v < v0 + n; ++v) {
@@ -248,19 +244,19 @@ CellOutcome finishCell(const DepthImage& depth, int gx, int gy, const PcaConfig&
       }
     }
   }
-  if (count < min_valid || count < 3) return CellOutcome::kInvalid;
+  if (s.count < min_valid || s.count < 3) return CellOutcome::kInvalid;
 
-  const double inv = 1.0 / count;
-  const double mx = sx * inv, my = sy * inv, mz = sz * inv;
-  const double norm = 1.0 / (count - 1);
+  const double inv = 1.0 / s.count;
+  const double mx = s.sx * inv, my = s.sy * inv, mz = s.sz * inv;
+  const double norm = 1.0 / (s.count - 1);
   Eigen::Matrix3d cov;
-  cov(0, 0) = (sxx - sx * mx) * norm;
-  cov(0, 1) = cov(1, 0) = (sxy - sx * my) * norm;
-  cov(0, 2) = cov(2, 0) = (sxz - sx * mz) * norm;
-  cov(1, 1) = (syy - sy * my) * norm;
-  cov(1, 2) = cov(2, 1) = (syz - sy * mz) * norm;
-  cov(2, 2) = (szz - sz * mz) * norm;
-  const Eigen::Vector3d mean(double(ox) + mx, double(oy) + my, double(oz) + mz);
+  cov(0, 0) = (s.sxx - s.sx * mx) * norm;
+  cov(0, 1) = cov(1, 0) = (s.sxy - s.sx * my) * norm;
+  cov(0, 2) = cov(2, 0) = (s.sxz - s.sx * mz) * norm;
+  cov(1, 1) = (s.syy - s.sy * my) * norm;
+  cov(1, 2) = cov(2, 1) = (s.syz - s.sy * mz) * norm;
+  cov(2, 2) = (s.szz - s.sz * mz) * norm;
+  const Eigen::Vector3d mean(double(s.ox) + mx, double(s.oy) + my, double(s.oz) + mz);
 
   // With pooled normals and no Förstner–Moonen terms only the eigenvalues of the cell itself are
   // read (degeneracy, surface variation): skip its eigenvectors, and let pooling start from the
@@ -291,7 +287,7 @@ CellOutcome finishCell(const DepthImage& depth, int gx, int gy, const PcaConfig&
 
   cell->gx = gx;
   cell->gy = gy;
-  cell->n_valid = count;
+  cell->n_valid = s.count;
   cell->mean_C = mean.cast<float>();
   cell->normal_C = normal.cast<float>();
   cell->cov = cov.cast<float>();
@@ -426,18 +422,7 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
   const int n = config.cell_size, max_missing = per_cell - min_valid;
   auto reduceRow = [&](int gy, std::vector<Cell>* out, ReductionStats* stats) {
     Cell cell;
-    CellSums sums[4];
-    for (int gx = 0; gx < cloud.grid_w; ++gx) {
-      // Four cells' sums at a time where four remain in the row; the last few one by one.
-      const int lane = gx % 4;
-      if (lane == 0 && gx + 4 <= cloud.grid_w)
-        sumFourCells(depth, u_ray.data(), v_ray.data(), gx, gy, n, sums);
-      const bool four = gx - lane + 4 <= cloud.grid_w;
-      const bool summed =
-          four || sumCell(depth, u_ray.data(), v_ray.data(), gx, gy, n, max_missing, &sums[0]);
-      const CellOutcome outcome =
-          summed ? finishCell(depth, gx, gy, config, min_valid, sums[four ? lane : 0], &cell)
-                 : CellOutcome::kInvalid;
+    auto emit = [&](CellOutcome outcome) {
       switch (outcome) {
         case CellOutcome::kKept:
           out->push_back(cell);
@@ -452,7 +437,19 @@ CellCloud reduceToCells(const DepthImage& depth, const PinholeIntrinsics& intrin
           ++stats->pruned_edge;
           break;
       }
+    };
+    // Four cells' sums at a time while four remain in the row; the last few one by one.
+    CellSums sums[4];
+    int gx = 0;
+    for (; gx + 4 <= cloud.grid_w; gx += 4) {
+      sumFourCells(depth, u_ray.data(), v_ray.data(), gx, gy, n, sums);
+      for (int k = 0; k < 4; ++k)
+        emit(finishCell(depth, gx + k, gy, config, min_valid, sums[k], &cell));
     }
+    for (; gx < cloud.grid_w; ++gx)
+      emit(sumCell(depth, u_ray.data(), v_ray.data(), gx, gy, n, max_missing, &sums[0])
+               ? finishCell(depth, gx, gy, config, min_valid, sums[0], &cell)
+               : CellOutcome::kInvalid);
   };
   if (pool.threads() > 1) {
     std::vector<std::vector<Cell>> rows(cloud.grid_h);

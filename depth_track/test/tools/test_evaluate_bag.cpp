@@ -13,6 +13,7 @@
 #include <sensor_msgs/Image.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -22,7 +23,6 @@
 #include <functional>
 #include <regex>
 #include <set>
-#include <cctype>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -491,6 +491,22 @@ TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
   EXPECT_LT(near.size(), full.size() / 2) << near.size() << " of " << full.size();
 }
 
+namespace {
+// registration_basin's CSV rows (lines that start with a frame index), as numbers.
+std::vector<std::vector<double>> basinRows(const std::string& output) {
+  std::vector<std::vector<double>> rows;
+  std::istringstream lines(output);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.empty() || !std::isdigit(static_cast<unsigned char>(line[0]))) continue;
+    std::vector<double> v;
+    std::istringstream fields(line);
+    for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
+    rows.push_back(v);
+  }
+  return rows;
+}
+}  // namespace
+
 // registration_basin on the noise-free Hall1 start: one basin (the zero guess and the true one
 // converge to the same translation, near the truth: measured 28.66 / 28.68 mm of 30 along the
 // corridor), one CSV row per frame and guess; the guesses and tracker options are applied; a
@@ -500,15 +516,7 @@ TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
   const ToolRun r = tool_test::runTool(
       REGISTRATION_BASIN, "--render hall1 --noise none --ref 0 --frames 5 --guesses 0,1", out.path);
   ASSERT_EQ(r.rc, 0) << r.output;
-  std::vector<std::vector<double>> rows;
-  std::istringstream lines(r.output);
-  for (std::string line; std::getline(lines, line);) {
-    if (line.empty() || !std::isdigit(static_cast<unsigned char>(line[0]))) continue;
-    std::vector<double> v;
-    std::istringstream fields(line);
-    for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
-    rows.push_back(v);
-  }
+  const auto rows = basinRows(r.output);
   ASSERT_EQ(rows.size(), 2u) << r.output;
   for (const auto& v : rows) {
     ASSERT_EQ(v.size(), 12u);
@@ -527,20 +535,15 @@ TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
       REGISTRATION_BASIN,
       "--render hall1 --noise none --ref 0 --frames 8 --guesses 0,1 --max-iterations 1", out.path);
   ASSERT_EQ(one.rc, 0) << one.output;
-  std::vector<double> z;
-  std::istringstream one_lines(one.output);
-  for (std::string line; std::getline(one_lines, line);) {
-    if (line.rfind("8,", 0) != 0) continue;
-    std::vector<std::string> f;
-    std::istringstream fields(line);
-    for (std::string x; std::getline(fields, x, ',');) f.push_back(x);
-    ASSERT_EQ(f.size(), 12u) << line;
-    EXPECT_EQ(f[9], "1") << line;  // iterations
-    z.push_back(std::stod(f[7]));
+  const auto one_rows = basinRows(one.output);
+  ASSERT_EQ(one_rows.size(), 2u) << one.output;
+  for (const auto& v : one_rows) {
+    ASSERT_EQ(v.size(), 12u);
+    EXPECT_EQ(v[0], 8);
+    EXPECT_EQ(v[9], 1);  // iterations
   }
-  ASSERT_EQ(z.size(), 2u) << one.output;
-  EXPECT_LT(z[0], 55.0);
-  EXPECT_GT(z[1], 58.0);
+  EXPECT_LT(one_rows[0][7], 55.0);
+  EXPECT_GT(one_rows[1][7], 58.0);
 
   const ToolRun bad =
       tool_test::runTool(REGISTRATION_BASIN, "--render hall1 --ref 5000 --frames 3", out.path);
