@@ -492,16 +492,20 @@ TEST(TrackSequenceRender, DepthRangeAppliesToRenderedFrames) {
 }
 
 namespace {
-// registration_basin's CSV rows (lines that start with a frame index), as numbers.
-std::vector<std::vector<double>> basinRows(const std::string& output) {
+// Runs registration_basin with `args` and returns its CSV rows (the lines that start with a
+// frame index) as numbers, each checked to have the tool's 12 columns.
+std::vector<std::vector<double>> basinRows(const std::string& args, const std::string& dir) {
+  const ToolRun r = tool_test::runTool(REGISTRATION_BASIN, args, dir);
+  EXPECT_EQ(r.rc, 0) << r.output;
   std::vector<std::vector<double>> rows;
-  std::istringstream lines(output);
+  std::istringstream lines(r.output);
   for (std::string line; std::getline(lines, line);) {
     if (line.empty() || !std::isdigit(static_cast<unsigned char>(line[0]))) continue;
     std::vector<double> v;
     std::istringstream fields(line);
     for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
-    rows.push_back(v);
+    EXPECT_EQ(v.size(), 12u) << line;
+    if (v.size() == 12u) rows.push_back(v);
   }
   return rows;
 }
@@ -513,13 +517,10 @@ std::vector<std::vector<double>> basinRows(const std::string& output) {
 // reference outside the run is refused by name.
 TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
   TmpDir out;
-  const ToolRun r = tool_test::runTool(
-      REGISTRATION_BASIN, "--render hall1 --noise none --ref 0 --frames 5 --guesses 0,1", out.path);
-  ASSERT_EQ(r.rc, 0) << r.output;
-  const auto rows = basinRows(r.output);
-  ASSERT_EQ(rows.size(), 2u) << r.output;
+  const auto rows =
+      basinRows("--render hall1 --noise none --ref 0 --frames 5 --guesses 0,1", out.path);
+  ASSERT_EQ(rows.size(), 2u);
   for (const auto& v : rows) {
-    ASSERT_EQ(v.size(), 12u);
     EXPECT_EQ(v[0], 5);
     EXPECT_NEAR(v[4], 30.0, 1e-6);  // the truth: at rest to frame 2, then 10 mm a frame along z
     EXPECT_LT(v[8], 3.0) << "guess " << v[1] << ": converged " << v[5] << " " << v[6] << " "
@@ -531,19 +532,15 @@ TEST(RegistrationBasin, OneBasinOnNoiseFreeFramesAndBadIndexNamed) {
 
   // The guesses and the tracker options reach the registration: one iteration from zero motion
   // stops short of the truth (measured 40.4 of 60 mm at frame 8), one from the truth stays there.
-  const ToolRun one = tool_test::runTool(
-      REGISTRATION_BASIN,
+  const auto one = basinRows(
       "--render hall1 --noise none --ref 0 --frames 8 --guesses 0,1 --max-iterations 1", out.path);
-  ASSERT_EQ(one.rc, 0) << one.output;
-  const auto one_rows = basinRows(one.output);
-  ASSERT_EQ(one_rows.size(), 2u) << one.output;
-  for (const auto& v : one_rows) {
-    ASSERT_EQ(v.size(), 12u);
+  ASSERT_EQ(one.size(), 2u);
+  for (const auto& v : one) {
     EXPECT_EQ(v[0], 8);
     EXPECT_EQ(v[9], 1);  // iterations
   }
-  EXPECT_LT(one_rows[0][7], 55.0);
-  EXPECT_GT(one_rows[1][7], 58.0);
+  EXPECT_LT(one[0][7], 55.0);
+  EXPECT_GT(one[1][7], 58.0);
 
   const ToolRun bad =
       tool_test::runTool(REGISTRATION_BASIN, "--render hall1 --ref 5000 --frames 3", out.path);
