@@ -312,6 +312,8 @@ int main(int argc, char** argv) {
           vm.memoryBytes() / 1e6, vm.memoryBytes() / occ, vm.octreeMemoryBytes() / 1e6,
           vm.octreeMemoryBytes() / occ,
           options.map_path.empty() ? " (octree not flushed: no --map)" : "");
+      const std::string noise_limit = vm.fuseNoiseSummary();
+      if (!noise_limit.empty()) std::printf("map noise limit: %s\n", noise_limit.c_str());
       const LoopCloser* lc = mapper->loopCloser();
       if (lc && lc->layer()) {
         const SurfaceModel& layer = *lc->layer();

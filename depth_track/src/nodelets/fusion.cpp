@@ -106,6 +106,7 @@ class FusionNodelet : public nodelet::Nodelet {
     d.add("frames fused", fused_.load());
     d.add("frames not fused (not tracked)", not_fused_.load());
     d.add("publications", publications_.load());
+    d.addf("fuse depth limit (m, 0 = none)", "%.2f", fuse_depth_limit_m_.load());
     d.addf("since last publication (s)", "%.1f", last_publish_wall_s_ > 0 ? since : -1.0);
   }
 
@@ -132,7 +133,15 @@ class FusionNodelet : public nodelet::Nodelet {
       const auto map = ctx_->map.ensureMap(K, config_, T_map_C);
       MapFuser& fuser =
           fuser_.over(map, K, [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); });
-      fuser.fuse(depth, T_map_C);
+      const FuseStats fs = fuser.fuse(depth, T_map_C);
+      fuse_depth_limit_m_ = fs.fuse_depth_limit_m;
+      // The noise limit (max_fuse_noise) is set on the map's first frames: say once what it
+      // measured and what it leaves out.
+      const std::string noise_limit = map->fuseNoiseSummary();
+      if (noise_limit != logged_noise_limit_) {
+        logged_noise_limit_ = noise_limit;
+        NODELET_INFO("fusion: depth noise %s", noise_limit.c_str());
+      }
       if (config_.flush_every > 0 && map->framesFused() % config_.flush_every == 0) map->flush();
       ++fused_;
       map_changed_ = true;
@@ -320,6 +329,8 @@ class FusionNodelet : public nodelet::Nodelet {
   std::string map_frame_, odom_frame_, map_path_;
   double publish_period_s_ = 1.0;
   MapperConfig config_;
+  std::atomic<double> fuse_depth_limit_m_{0.0};  ///< the last fused frame's (FuseStats)
+  std::string logged_noise_limit_;               ///< the noise limit's summary as last logged
   std::shared_ptr<GraphContext> ctx_;
   double last_stamp_ = -1.0;
   std::atomic<std::uint64_t> fused_{0}, not_fused_{0}, publications_{0};

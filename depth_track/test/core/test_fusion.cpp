@@ -382,6 +382,86 @@ TEST(Fusion, BoundedRegionDropsReturnsOutside) {
   EXPECT_EQ(st.outside_region, st.valid_pixels);
 }
 
+// A plane tilted towards the camera, depth 1.03-2.76 m (bottom to top rows), with stereo-like
+// noise of sigma(z) = quad_per_m z^2 along the optical axis.
+DepthImage noisyTiltedPlane(double quad_per_m, unsigned seed) {
+  DepthImage d = planeDepth(kK, Eigen::Vector3d(0, 1, 1).normalized(), 1.5 / std::sqrt(2.0));
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (float& z : d.data)
+    if (z > 0.0f) z = static_cast<float>(z + quad_per_m * z * z * g(rng));
+  return d;
+}
+
+TEST(Fusion, MaxFuseNoiseMeasuresTheSensorAndLeavesItsNoisiestReturnsOut) {
+  // sigma(z) = 8 mm/m^2 z^2 reaches 6 voxels of 5 mm (30 mm) at sqrt(30 / 8) = 1.94 m, inside the
+  // plane's depths: the map measures the noise on its first frame and fuses nothing deeper.
+  MapConfig cfg = unboundedConfig(0.005, UpdateModel::kProbabilistic);
+  ASSERT_EQ(cfg.max_fuse_noise_voxels, 6.0);  // the default this test is about
+  VoxelMap map(cfg);
+  EXPECT_EQ(map.noiseFuseDepth(), 0.0);
+  EXPECT_EQ(map.fuseNoiseSummary(), "");
+  const DepthImage d = noisyTiltedPlane(0.008, 3);
+  const FuseStats st = map.fuse(d, kK, Eigen::Isometry3d::Identity());
+  const double limit = map.noiseFuseDepth();
+  std::printf("noise limit %.3f m (expected 1.94 m): %s\n", limit, map.fuseNoiseSummary().c_str());
+  EXPECT_NEAR(limit, std::sqrt(0.030 / 0.008), 0.2);
+  EXPECT_EQ(st.fuse_depth_limit_m, limit);
+  EXPECT_NE(map.fuseNoiseSummary().find("beyond"), std::string::npos) << map.fuseNoiseSummary();
+  int deeper = 0;
+  for (float z : d.data) deeper += z > 0.0f && z > static_cast<float>(limit);
+  EXPECT_GT(deeper, 1000);
+  EXPECT_EQ(st.beyond_fuse_depth, deeper);
+  double deepest = 0.0;
+  map.forEachOccupied([&](const VoxelKey& k) { deepest = std::max(deepest, map.centerOf(k).z()); });
+  EXPECT_GT(deepest, limit - 0.1);
+  EXPECT_LE(deepest, limit + 0.0025 + 1e-9);
+  // Measured once: a later frame with other noise keeps the limit.
+  const FuseStats later = map.fuse(noisyTiltedPlane(0.001, 4), kK, Eigen::Isometry3d::Identity());
+  EXPECT_EQ(map.noiseFuseDepth(), limit);
+  EXPECT_EQ(later.fuse_depth_limit_m, limit);
+  EXPECT_GT(later.beyond_fuse_depth, 1000);
+  // max_fuse_depth nearer than the noise limit wins.
+  cfg.max_fuse_depth_m = 1.5;
+  VoxelMap both(cfg);
+  EXPECT_EQ(both.fuse(d, kK, Eigen::Isometry3d::Identity()).fuse_depth_limit_m, 1.5);
+  EXPECT_NEAR(both.noiseFuseDepth(), limit, 1e-12);  // the same frame measures the same
+  // Off: every return is fused.
+  cfg.max_fuse_depth_m = 0.0;
+  cfg.max_fuse_noise_voxels = 0.0;
+  VoxelMap off(cfg);
+  const FuseStats all = off.fuse(d, kK, Eigen::Isometry3d::Identity());
+  EXPECT_EQ(all.beyond_fuse_depth, 0);
+  EXPECT_EQ(all.fuse_depth_limit_m, 0.0);
+  EXPECT_EQ(off.fuseNoiseSummary(), "");
+  // A sensor whose noise stays below 6 voxels over the range (1 mm/m^2: 30 mm at 5.5 m) is not
+  // limited, and the summary says where the limit would lie.
+  VoxelMap quiet(unboundedConfig(0.005, UpdateModel::kProbabilistic));
+  EXPECT_EQ(quiet.fuse(noisyTiltedPlane(0.001, 5), kK, Eigen::Isometry3d::Identity())
+                .beyond_fuse_depth,
+            0);
+  EXPECT_GT(quiet.noiseFuseDepth(), 4.0);
+  // A wall square on at one depth cannot tell how the noise grows with depth: after 10 such
+  // frames the map stops trying and says so, and a noisy frame after that is fused whole.
+  VoxelMap wall(unboundedConfig(0.005, UpdateModel::kProbabilistic));
+  for (unsigned i = 0; i < 10; ++i) {
+    wall.fuse(planeDepth(kK, Eigen::Vector3d::UnitZ(), 2.1, 0.02, i + 1), kK,
+              Eigen::Isometry3d::Identity());
+    if (i < 9) EXPECT_EQ(wall.fuseNoiseSummary(), "") << "frame " << i + 1;
+  }
+  EXPECT_NE(wall.fuseNoiseSummary().find("not measured on the first 10 frames"), std::string::npos)
+      << wall.fuseNoiseSummary();
+  EXPECT_EQ(wall.fuse(d, kK, Eigen::Isometry3d::Identity()).beyond_fuse_depth, 0);
+  EXPECT_EQ(wall.noiseFuseDepth(), 0.0);
+  cfg.max_fuse_noise_voxels = -1.0;
+  try {
+    VoxelMap bad(cfg);
+    ADD_FAILURE() << "a negative max_fuse_noise_voxels was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("max_fuse_noise_voxels"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Fusion, MaxFuseDepthLeavesDeeperReturnsOut) {
   // A plane tilted towards the camera: depth from 1.03 m (bottom rows) to 2.76 m (top rows).
   const DepthImage d = planeDepth(kK, Eigen::Vector3d(0, 1, 1).normalized(), 1.5 / std::sqrt(2.0));

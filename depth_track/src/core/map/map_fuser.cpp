@@ -3,11 +3,15 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
+#include <string>
 
 #include "carve_walk.hpp"
+#include "depth_track/core/noise_model.hpp"
 #include "voxel_map_impl.hpp"
 
 namespace depth_track {
@@ -235,6 +239,63 @@ __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
   }
 }
 
+// Frames on which the noise limit tries to measure the sensor's noise before it gives up.
+constexpr int kNoiseFrames = 10;
+
+// One frame's contribution to the noise limit (MapConfig::max_fuse_noise_voxels).
+struct NoiseLimit {
+  bool settled = false;  // measured (or unmeasurable for good): no further frame is measured
+  double depth_m = std::numeric_limits<double>::infinity();  // infinity = no limit
+  std::string summary;
+};
+
+// Measures sigma(z) on one frame and the depth where it reaches the limit. Not settled when the
+// frame has too few planar cells to tell (a later frame may).
+NoiseLimit measureNoiseLimit(const DepthImage& depth, const PinholeIntrinsics& intrinsics,
+                             const MapConfig& config, int frame_number) {
+  NoiseLimit out;
+  const double limit_m = config.max_fuse_noise_voxels * config.voxel_size_m;
+  char lim[96];
+  std::snprintf(lim, sizeof(lim), "%.3g voxels = %.1f mm", config.max_fuse_noise_voxels,
+                1e3 * limit_m);
+  NoiseEstimator estimator;
+  try {
+    estimator.addFrame(depth, intrinsics);
+  } catch (const DepthInputError& e) {
+    out.settled = true;
+    out.summary = std::string("depth noise not measurable (") + e.what() + "): no noise limit";
+    return out;
+  }
+  const DepthNoiseModel noise = estimator.model();
+  if (!noise.known()) {
+    if (frame_number >= kNoiseFrames) {
+      out.settled = true;
+      out.summary = "depth noise not measured on the first " + std::to_string(kNoiseFrames) +
+                    " frames (too few planar cells): no noise limit";
+    }
+    return out;
+  }
+  out.settled = true;
+  const double z = noise.depthAtSigma(limit_m);
+  char buf[320];
+  if (z == 0.0) {
+    std::snprintf(buf, sizeof(buf),
+                  "%s; above the limit of %s at every depth (voxels finer than this sensor's "
+                  "noise): no noise limit",
+                  estimator.summary().c_str(), lim);
+  } else if (!std::isfinite(z)) {
+    std::snprintf(buf, sizeof(buf), "%s; never above the limit of %s: no noise limit",
+                  estimator.summary().c_str(), lim);
+  } else {
+    out.depth_m = z;
+    std::snprintf(buf, sizeof(buf),
+                  "%s; above the limit of %s beyond %.2f m: deeper returns are not fused",
+                  estimator.summary().c_str(), lim, z);
+  }
+  out.summary = buf;
+  return out;
+}
+
 }  // namespace
 
 MapFuser::MapFuser(VoxelMap& map, const PinholeIntrinsics& intrinsics)
@@ -258,6 +319,18 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   FuseStats st;
 
   VoxelMap::Impl& m = *map_.impl_;
+  const MapConfig& config = map_.config();
+  // The noise limit is measured on the map's first frames, before the write lock (the
+  // measurement reads only the frame, and readers need not wait for it).
+  std::optional<NoiseLimit> noise;
+  if (config.max_fuse_noise_voxels > 0.0) {
+    int frames = 0;
+    {
+      const map_detail::ReadLock lock(m.mutex);
+      frames = m.noise_settled ? -1 : m.noise_frames;
+    }
+    if (frames >= 0) noise = measureNoiseLimit(depth, intrinsics_, config, frames + 1);
+  }
   const map_detail::WriteLock lock(m.mutex);
   const auto t_start = std::chrono::steady_clock::now();
   st.ms_lock_wait = std::chrono::duration<double, std::milli>(t_start - t_call).count();
@@ -271,14 +344,27 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   fr.Rs = (T_W_C.linear() * m.inv_s).cast<float>();
   fr.ts = (T_W_C.translation() * m.inv_s).cast<float>();
 
-  const MapConfig& config = map_.config();
-  const double z_max = config.max_fuse_depth_m > 0.0 ? config.max_fuse_depth_m
-                                                     : std::numeric_limits<double>::infinity();
+  // Another fuser of this map may have settled the limit since the read above.
+  const bool settles = noise && noise->settled && !m.noise_settled;
+  const double noise_depth = settles ? noise->depth_m : m.noise_depth_m;
+  const double z_max = std::min(config.max_fuse_depth_m > 0.0
+                                    ? config.max_fuse_depth_m
+                                    : std::numeric_limits<double>::infinity(),
+                                noise_depth);
+  st.fuse_depth_limit_m = std::isfinite(z_max) ? z_max : 0.0;
   fuseHits(m, depth, fr, static_cast<float>(z_max), st);
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
     throw DepthInputError("fuse: depth frame has no valid return");
+  }
+  if (noise && !m.noise_settled) {
+    ++m.noise_frames;
+    if (settles) {
+      m.noise_settled = true;
+      m.noise_depth_m = noise->depth_m;
+    }
+    if (!noise->summary.empty()) m.noise_summary = noise->summary;
   }
   if (config.model == UpdateModel::kProbabilistic)
     carve(m, depth, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, z_max, st);

@@ -46,6 +46,10 @@ std::vector<MapperParamSpec> makeParams() {
   p.push_back(num("max_fuse_depth", "m",
                   "fuse (and carve) returns only up to this depth; 0 = the whole depth range",
                   [](MapperConfig& c) -> double& { return c.map.max_fuse_depth_m; }));
+  p.push_back(num("max_fuse_noise", "voxels",
+                  "fuse (and carve) returns only where the depth noise measured on the first "
+                  "frames stays below this many voxels; 0 = off",
+                  [](MapperConfig& c) -> double& { return c.map.max_fuse_noise_voxels; }));
   p.push_back(num("flush_every", "frames", "frames between OcTree flushes (0 = when saving)",
                   [](MapperConfig& c) -> int& { return c.flush_every; }));
   // ---- ray-cast range (virtual images) ----

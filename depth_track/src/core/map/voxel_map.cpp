@@ -65,6 +65,8 @@ std::vector<std::string> MapConfig::validate() const {
     p.push_back("carve_margin_m must be >= 0 m");
   if (!(std::isfinite(max_fuse_depth_m) && max_fuse_depth_m >= 0.0))
     p.push_back("max_fuse_depth_m must be >= 0 m (0 = no limit)");
+  if (!(std::isfinite(max_fuse_noise_voxels) && max_fuse_noise_voxels >= 0.0))
+    p.push_back("max_fuse_noise_voxels must be >= 0 voxels (0 = off)");
   return p;
 }
 
@@ -181,6 +183,16 @@ std::vector<VoxelKey> VoxelMap::occupiedKeys() const {
   keys.reserve(occupiedCount());
   forEachOccupied([&](const VoxelKey& k) { keys.push_back(k); });
   return keys;
+}
+
+std::string VoxelMap::fuseNoiseSummary() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return impl_->noise_summary;
+}
+
+double VoxelMap::noiseFuseDepth() const {
+  const map_detail::ReadLock lock(impl_->mutex);
+  return std::isfinite(impl_->noise_depth_m) ? impl_->noise_depth_m : 0.0;
 }
 
 std::size_t VoxelMap::occupiedCount() const {

@@ -156,6 +156,12 @@ struct VoxelMap::Impl {
 
   std::unique_ptr<octomap::OcTree> tree;
   std::uint32_t frame = 0;
+  // The noise limit (MapConfig::max_fuse_noise_voxels): frames measured so far, whether a
+  // measurement settled it, the depth it set (infinity = none) and its one-line summary.
+  int noise_frames = 0;
+  bool noise_settled = false;
+  double noise_depth_m = std::numeric_limits<double>::infinity();
+  std::string noise_summary;
   std::size_t occupied_count = 0;
   std::size_t block_count = 0;
 

@@ -84,6 +84,14 @@ struct MapConfig {
   /// carry centimetres of noise that spread each wall over a thick shell of voxels and cost most
   /// of its fusion time, yet the far walls are what pins its pose (docs/mapping.md, Speed).
   double max_fuse_depth_m = 0.0;
+  /// Returns whose depth noise sigma(z) exceeds this many voxels are neither fused nor carved
+  /// along either (0 = off): their hits scatter over a shell several times their noise deep
+  /// instead of marking the surface, and with a D435's quadratic noise they cost most of the
+  /// fusion time. sigma(z) is measured on the first frames the map fuses (the estimator of the
+  /// tracker's auto_noise), which sets the depth where it reaches the limit once: 6 voxels of
+  /// 5 mm put it at 2.4 m for a rendered D435, beyond the 4 m range for a Kinect or an L515
+  /// (docs/mapping.md, "The noise limit"). The lower of this depth and max_fuse_depth_m applies.
+  double max_fuse_noise_voxels = 6.0;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -94,7 +102,10 @@ struct FuseStats {
   int valid_pixels = 0;       ///< pixels with a return
   int fused_pixels = 0;       ///< returns inside the region that updated (or re-hit) a voxel
   int outside_region = 0;     ///< returns outside the bounded region (or the key range)
-  int beyond_fuse_depth = 0;  ///< returns deeper than max_fuse_depth_m (not fused)
+  int beyond_fuse_depth = 0;  ///< returns deeper than the fuse depth limit (not fused)
+  /// The depth limit the call applied (the lower of max_fuse_depth_m and the noise limit),
+  /// metres; 0 = none.
+  double fuse_depth_limit_m = 0.0;
   int hit_updates = 0;        ///< voxels updated as hit
   int miss_updates = 0;       ///< voxels updated as miss (carving)
   int carve_rays = 0;         ///< rays walked for carving
@@ -172,6 +183,12 @@ class VoxelMap {
   /// Heap bytes of the OcTree after the last flush (OctoMap's own memoryUsage()).
   std::size_t octreeMemoryBytes() const;
   const MapConfig& config() const { return config_; }
+  /// What the map's noise limit (MapConfig::max_fuse_noise_voxels) measured so far: empty while
+  /// the limit is off or no frame has been measured yet; else one line with the sensor's
+  /// sigma(z) and the depth limit it set (or why none was set).
+  std::string fuseNoiseSummary() const;
+  /// The noise limit's depth, metres; 0 while none is set.
+  double noiseFuseDepth() const;
   int framesFused() const;
 
   /// Pushes every voxel changed since the last flush into the OcTree (log-odds set key by key,
