@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -13,6 +14,7 @@
 
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/map/map_quality.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/se3.hpp"
@@ -111,6 +113,10 @@ int main(int argc, char** argv) {
   app.add_option("--gt-out", gt_out_path, "write the true trajectory here (--render only)");
   app.add_option("--status-out", status_path, "per-frame status as CSV");
   app.add_flag("--verbose", verbose, "print one line per frame");
+  bool map_quality = false;
+  app.add_flag("--map-quality", map_quality,
+               "rendered run with --map: the map's precision and completeness against the scene "
+               "(true surface sampled on every 20th frame's noise-free render, every 4th pixel)");
   std::string fuse_poses;
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
@@ -146,11 +152,14 @@ int main(int argc, char** argv) {
       rendered = r.get();
       source = std::move(r);
     }
+    if (map_quality && (!rendered || !options.mapWanted()))
+      throw std::invalid_argument("--map-quality needs a rendered run (--render) and --map");
     const PinholeIntrinsics& K = source->intrinsics();
     Tracker tracker(K, config, options.startPose());
 
     std::unique_ptr<Mapper> mapper;
     Trajectory fuse_traj;
+    Eigen::Isometry3d T_run_map = Eigen::Isometry3d::Identity();  // rendered run's world <- map
     if (options.mapWanted() || !fuse_poses.empty()) {
       MapperConfig mc = options.mapperConfig();
       mc.loop.enabled = mc.loop.enabled && fuse_poses.empty();
@@ -159,8 +168,10 @@ int main(int argc, char** argv) {
         if (fuse_traj.empty())
           throw std::invalid_argument("--fuse-poses " + fuse_poses + " has no poses");
       }
-      mapper = std::make_unique<Mapper>(
-          K, mc, fuse_traj.empty() ? tracker.pose() : fuse_traj.front().T_W_C);
+      const Eigen::Isometry3d T_M_C0 = fuse_traj.empty() ? tracker.pose() : fuse_traj.front().T_W_C;
+      mapper = std::make_unique<Mapper>(K, mc, T_M_C0);
+      // The map's frame puts the first camera at T_M_C0, the run's world at T_W_C[0].
+      if (rendered) T_run_map = rendered->run().T_W_C.front() * T_M_C0.inverse();
     }
 
     std::FILE* status = nullptr;
@@ -185,6 +196,7 @@ int main(int argc, char** argv) {
         fuse_pose_of[i] = static_cast<long>(j);
     }
     Trajectory est, gt;
+    std::vector<Eigen::Vector3d> surface;  // --map-quality: the visible true surface
     RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
@@ -228,6 +240,11 @@ int main(int argc, char** argv) {
         st.T_W_C = tracker.pose();
         std::cerr << "frame " << i << ": " << e.what() << "\n";
       }
+      if (map_quality && i % 20 == 0)
+        for (const Eigen::Vector3d& p_run : rendered->run().visibleSurface(i, 4)) {
+          const Eigen::Vector3d p = T_run_map.inverse() * p_run;
+          if (mapper->map().region().contains(p)) surface.push_back(p);
+        }
       if (st.tracked)
         ++tracked;
       else
@@ -314,6 +331,19 @@ int main(int argc, char** argv) {
           options.map_path.empty() ? " (octree not flushed: no --map)" : "");
       const std::string noise_limit = vm.fuseNoiseSummary();
       if (!noise_limit.empty()) std::printf("map noise limit: %s\n", noise_limit.c_str());
+      if (map_quality) {
+        // "Within one voxel": the voxel is, or touches, one the surface passes through.
+        const double tol = (1.0 + std::sqrt(3.0) / 2.0) * vm.config().voxel_size_m;
+        const sim::Scene& scene = rendered->run().scene;
+        const SurfaceQuality q = surfaceQuality(
+            vm, [&](const Eigen::Vector3d& p) { return scene.distanceTo(T_run_map * p); }, surface,
+            tol);
+        std::printf(
+            "map quality: precision %.2f %% (%zu of %zu occupied voxels within %.1f mm of the "
+            "scene), completeness %.2f %% (of %zu visible surface samples)\n",
+            100.0 * q.precision, q.near_surface, q.occupied, 1e3 * tol, 100.0 * q.completeness,
+            q.surface_samples);
+      }
       const LoopCloser* lc = mapper->loopCloser();
       if (lc && lc->layer()) {
         const SurfaceModel& layer = *lc->layer();

@@ -16,16 +16,6 @@
 
 using namespace depth_track;
 
-namespace {
-
-double sceneDistance(const sim::Scene& scene, const Eigen::Vector3d& p_W) {
-  double d = std::numeric_limits<double>::infinity();
-  for (const auto& prim : scene.primitives) d = std::min(d, sim::distanceToSurface(prim, p_W));
-  return d;
-}
-
-}  // namespace
-
 TEST(MapQuality, VoxelSetDifferenceCountsWhatIsOff) {
   std::vector<VoxelKey> a, b;
   for (int x = 0; x < 10; ++x) {
@@ -45,7 +35,6 @@ TEST(MapQuality, VoxelSetDifferenceCountsWhatIsOff) {
 TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   const sim::RenderedRun run = sim::makeRun("xtest1_05_chair");
   const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
-  const auto clean = sim::NoiseConfig::forModel(sim::NoiseModel::kNone);
   MapperConfig mc;
   mc.range = run.range;
   // The map as configured by default (one hit makes a voxel occupied), for comparison.
@@ -65,19 +54,12 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
     tracked.process(d, st.T_W_C);
     one_hit.process(d, st.T_W_C);
     truth.fuse(d, run.T_W_C[i]);
-    if (i % 20 == 0) {  // visible true surface: noise-free render, every 4th pixel
-      const DepthImage c = run.renderFrame(i, clean, seed, 2);
-      for (int v = 0; v < c.height; v += 4)
-        for (int u = 0; u < c.width; u += 4)
-          if (c.at(u, v) > 0) {
-            const Eigen::Vector3d p =
-                run.T_W_C[i] * run.intrinsics.backProject(u, v, c.at(u, v)).cast<double>();
-            if (tracked.map().region().contains(p)) surface.push_back(p);
-          }
-    }
+    if (i % 20 == 0)  // visible true surface: noise-free render, every 4th pixel
+      for (const Eigen::Vector3d& p : run.visibleSurface(i, 4, 2))
+        if (tracked.map().region().contains(p)) surface.push_back(p);
   }
   const double s = mc.map.voxel_size_m;
-  auto dist = [&](const Eigen::Vector3d& p) { return sceneDistance(run.scene, p); };
+  auto dist = [&](const Eigen::Vector3d& p) { return run.scene.distanceTo(p); };
   // "Within one voxel of a true surface": the voxel is, or touches, a voxel the surface passes
   // through, i.e. its centre lies within one edge plus half a diagonal, (1 + sqrt(3)/2) s.
   const double tol = (1.0 + std::sqrt(3.0) / 2.0) * s;

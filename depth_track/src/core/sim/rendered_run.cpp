@@ -34,6 +34,18 @@ DepthImage RenderedRun::renderFrame(std::size_t i, const NoiseConfig& noise, std
   return applyNoise(clean.depth, noise, frameSeed(run_seed, i), range, &clean.cos_incidence);
 }
 
+std::vector<Eigen::Vector3d> RenderedRun::visibleSurface(std::size_t i, int step_px,
+                                                         int threads) const {
+  if (step_px < 1) throw std::invalid_argument("visibleSurface: step_px must be >= 1");
+  const DepthImage clean = renderFrame(i, NoiseConfig::forModel(NoiseModel::kNone), 0, threads);
+  std::vector<Eigen::Vector3d> out;
+  for (int v = 0; v < clean.height; v += step_px)
+    for (int u = 0; u < clean.width; u += step_px)
+      if (clean.at(u, v) > 0.0f)
+        out.push_back(T_W_C[i] * intrinsics.backProject(u, v, clean.at(u, v)).cast<double>());
+  return out;
+}
+
 RawDepth16 RenderedRun::renderFrameRaw(std::size_t i, const NoiseConfig& noise,
                                        std::uint64_t run_seed, int threads) const {
   return toRaw16(renderFrame(i, noise, run_seed, threads), nativeDepthScale(noise.model));

@@ -135,6 +135,12 @@ Eigen::Vector3d surfaceNormalLocal(const Primitive& prim, const Eigen::Vector3d&
   return Eigen::Vector3d::UnitZ();
 }
 
+double Scene::distanceTo(const Eigen::Vector3d& p_W) const {
+  double d = std::numeric_limits<double>::infinity();
+  for (const Primitive& prim : primitives) d = std::min(d, distanceToSurface(prim, p_W));
+  return d;
+}
+
 double distanceToSurface(const Primitive& prim, const Eigen::Vector3d& p_W) {
   const Eigen::Vector3d p = prim.T_W_P.inverse() * p_W;
   const Eigen::Vector3d& h = prim.half_extents;

@@ -56,6 +56,11 @@ struct RenderedRun {
   /// (nativeDepthScale(noise.model): L515 0.25 mm, D435 1 mm, none 0.2 mm). Thread-safe.
   RawDepth16 renderFrameRaw(std::size_t i, const NoiseConfig& noise, std::uint64_t run_seed,
                             int threads = 0) const;
+  /// The true surface frame i sees: its noise-free render back-projected every step_px pixels
+  /// in u and v, world frame (metres), within the run's depth range. For map completeness
+  /// (surfaceQuality). Throws std::out_of_range for a bad index, std::invalid_argument for
+  /// step_px < 1. Thread-safe.
+  std::vector<Eigen::Vector3d> visibleSurface(std::size_t i, int step_px, int threads = 0) const;
 };
 
 /// Parameters of a ServoTrack run: still frames, then either stepped motion (Mode 2: one

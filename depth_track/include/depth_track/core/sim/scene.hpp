@@ -45,6 +45,10 @@ struct Scene {
   std::string name;
   std::vector<Primitive> primitives;
 
+  /// Unsigned distance from p_W to the nearest primitive's surface, metres (infinity for an
+  /// empty scene). Thread-safe.
+  double distanceTo(const Eigen::Vector3d& p_W) const;
+
   /// Axis-aligned rectangle in a wall/floor: centre c_W, unit normal n_W (any direction), and
   /// half sizes; `up_W` fixes the in-plane orientation (x of P ~ up_W x n_W).
   void addRectangle(const Eigen::Vector3d& c_W, const Eigen::Vector3d& n_W, double half_w_m,
