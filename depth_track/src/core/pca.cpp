@@ -40,6 +40,8 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
   if (normal_radius_cells < 0 || normal_radius_cells > 4)
     problems.push_back("normal_radius_cells must lie in [0, 4]");
   if (!(normal_merge_dist_m > 0.0)) problems.push_back("normal_merge_dist_m must be > 0 m");
+  if (!(crease_sigmas >= 0.0 && std::isfinite(crease_sigmas)))
+    problems.push_back("crease_sigmas must be >= 0 (0 = off)");
   if (!(min_valid_fraction > 0.0 && min_valid_fraction <= 1.0))
     problems.push_back("min_valid_fraction must lie in (0, 1]");
   if (!(min_eigenvalue_m2 > 0.0 && std::isfinite(min_eigenvalue_m2)))
@@ -309,7 +311,9 @@ CellOutcome finishCell(const DepthImage& depth, int gx, int gy, const PcaConfig&
 // Re-estimates each cell's normal from the pooled scatter of the cells around it, skipping
 // neighbours whose mean is far from the cell's. Per-cell sufficient statistics about the camera
 // origin (count k, k*mean, (k-1)*cov + k*mean*mean^T) are summed in double precision, where the
-// metre-sized terms cancel to well below the covariance of a millimetre-noise patch.
+// metre-sized terms cancel to well below the covariance of a millimetre-noise patch. A patch
+// thicker than PcaConfig::crease_sigmas sigma(z) is pooled a second time, over the neighbours
+// near its plane through the cell's own mean.
 void poolNormals(const PcaConfig& config, CellCloud* cloud) {
   // Per cell: k, s1 (3), s2 (xx xy xz yy yz zz) as one vector of ten (summed two at a time), and
   // the float mean the merge test reads, side by side so a neighbour is one contiguous read.
@@ -334,7 +338,13 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
   const int r = config.normal_radius_cells;
   const float max_d2 = static_cast<float>(config.normal_merge_dist_m * config.normal_merge_dist_m);
   std::vector<Eigen::Vector3f> normals(n_cells);
-  for (std::size_t i = 0; i < n_cells; ++i) {
+  const double t = config.crease_sigmas;
+  const bool repool =
+      t > 0.0 && (config.noise_sigma_const_m > 0.0 || config.noise_sigma_quad_per_m > 0.0);
+  // Pools cell i's neighbours (those within the merge distance; with `plane`, only those whose
+  // mean lies within tol of the plane through cell i's mean with normal *plane) and returns the
+  // pooled normal, facing the camera, and the pooled patch's variance along it (m^2).
+  auto pool = [&](std::size_t i, const Eigen::Vector3f* plane, float tol, double* thickness) {
     const Cell& c = cloud->cells[i];
     const Eigen::Vector3f mean_i = st[i].mean;
     Sums sum = Sums::Zero();
@@ -345,6 +355,7 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
         if (j < 0) continue;
         const Stats& o = st[j];
         if ((o.mean - mean_i).squaredNorm() > max_d2) continue;
+        if (plane && std::abs(plane->dot(o.mean - mean_i)) > tol) continue;
         sum += o.v;
       }
     }
@@ -368,7 +379,22 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
       normal = es.eigenvectors().col(0).normalized();
     }
     if (normal.dot(c.mean_C.cast<double>()) > 0.0) normal = -normal;
-    normals[i] = normal.allFinite() ? normal.cast<float>() : c.normal_C;
+    if (thickness) *thickness = normal.dot(S * normal) / k;
+    return normal.allFinite() ? normal.cast<float>() : c.normal_C;
+  };
+  for (std::size_t i = 0; i < n_cells; ++i) {
+    double thickness = 0.0;
+    normals[i] = pool(i, nullptr, 0.0f, repool ? &thickness : nullptr);
+    if (!repool) continue;
+    // Across a crease the pooled plane is a compromise of the two surfaces, off both by more than
+    // the noise; the neighbours near that plane through the cell's own mean are, for the most
+    // part, those on the cell's own surface.
+    const double z = cloud->cells[i].mean_C.z();
+    const double sigma = config.noise_sigma_const_m + config.noise_sigma_quad_per_m * z * z;
+    if (thickness > t * t * sigma * sigma) {
+      const Eigen::Vector3f across = normals[i];
+      normals[i] = pool(i, &across, static_cast<float>(t * sigma), nullptr);
+    }
   }
   for (std::size_t i = 0; i < n_cells; ++i) cloud->cells[i].normal_C = normals[i];
 }

@@ -73,6 +73,10 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> int& { return c.pca.normal_radius_cells; }));
   p.push_back(num("normal_merge_dist", "m", "neighbour cells farther than this are not pooled",
                   [](TrackerConfig& c) -> double& { return c.pca.normal_merge_dist_m; }));
+  p.push_back(num("crease_sigmas", "",
+                  "a cell whose pooled patch is thicker than this many sigma(z) is pooled again "
+                  "over the neighbours on its own plane; 0 = off",
+                  [](TrackerConfig& c) -> double& { return c.pca.crease_sigmas; }));
   p.push_back(num("cov_regulariser", "m^2", "added to cell covariances for the FM metric",
                   [](TrackerConfig& c) -> double& { return c.pca.min_eigenvalue_m2; }));
   // ---- matching (DistMin, CosMin) ----

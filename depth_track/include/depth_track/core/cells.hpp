@@ -79,6 +79,15 @@ struct PcaConfig {
   /// not leak into the point-to-plane residual. Mean and covariance stay the cell's own.
   int normal_radius_cells = 1;
   double normal_merge_dist_m = 0.1;
+  /// A cell whose pooled patch is thicker along its normal than crease_sigmas times the depth
+  /// noise sigma(z) (noise_sigma_*; a patch across a crease between two surfaces, or across a
+  /// step) is pooled again over only the neighbours whose means lie within crease_sigmas sigma(z)
+  /// of that plane through its own mean: its normal then follows its own surface instead of
+  /// leaning across the crease. Pooled across a wall-floor crease, a D435's 45 px patches lean
+  /// 20-30 deg along a corridor, and as the crease keeps its place in the image while the camera
+  /// moves along it, those cells pulled the rendered Hall1 corridor's estimate back to zero
+  /// motion (docs/tracking.md, "Normals across creases"). 0 = off, or no noise model known.
+  double crease_sigmas = 2.0;
   /// Regulariser added to covariances for cov_inv_sqrt, m^2: (1 mm)^2, about the depth noise of a
   /// good sensor, so the Förstner–Moonen metric does not weigh sub-noise thicknesses.
   double min_eigenvalue_m2 = 1e-6;
