@@ -42,6 +42,8 @@ std::vector<std::string> PcaConfig::validate(int width, int height) const {
   if (!(normal_merge_dist_m > 0.0)) problems.push_back("normal_merge_dist_m must be > 0 m");
   if (!(crease_sigmas >= 0.0 && std::isfinite(crease_sigmas)))
     problems.push_back("crease_sigmas must be >= 0 (0 = off)");
+  if (crease_min_radius_cells < 1 || crease_min_radius_cells > 4)
+    problems.push_back("crease_min_radius_cells must lie in [1, 4]");
   if (!(min_valid_fraction > 0.0 && min_valid_fraction <= 1.0))
     problems.push_back("min_valid_fraction must lie in (0, 1]");
   if (!(min_eigenvalue_m2 > 0.0 && std::isfinite(min_eigenvalue_m2)))
@@ -339,8 +341,8 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
   const float max_d2 = static_cast<float>(config.normal_merge_dist_m * config.normal_merge_dist_m);
   std::vector<Eigen::Vector3f> normals(n_cells);
   const double t = config.crease_sigmas;
-  const bool repool =
-      t > 0.0 && (config.noise_sigma_const_m > 0.0 || config.noise_sigma_quad_per_m > 0.0);
+  const bool repool = t > 0.0 && r >= config.crease_min_radius_cells &&
+                      (config.noise_sigma_const_m > 0.0 || config.noise_sigma_quad_per_m > 0.0);
   // Pools cell i's neighbours (those within the merge distance; with `plane`, only those whose
   // mean lies within tol of the plane through cell i's mean with normal *plane) and returns the
   // pooled normal, facing the camera, and the pooled patch's variance along it (m^2).

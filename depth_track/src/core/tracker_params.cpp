@@ -77,6 +77,9 @@ std::vector<ParamSpec> makeParams() {
                   "a cell whose pooled patch is thicker than this many sigma(z) is pooled again "
                   "over the neighbours on its own plane; 0 = off",
                   [](TrackerConfig& c) -> double& { return c.pca.crease_sigmas; }));
+  p.push_back(num("crease_min_radius", "cells",
+                  "... only where normals are pooled over at least this radius",
+                  [](TrackerConfig& c) -> int& { return c.pca.crease_min_radius_cells; }));
   p.push_back(num("cov_regulariser", "m^2", "added to cell covariances for the FM metric",
                   [](TrackerConfig& c) -> double& { return c.pca.min_eigenvalue_m2; }));
   // ---- matching (DistMin, CosMin) ----

@@ -407,6 +407,7 @@ TEST(Fusion, MaxFuseNoiseMeasuresTheSensorAndLeavesItsNoisiestReturnsOut) {
   std::printf("noise limit %.3f m (expected 1.94 m): %s\n", limit, map.fuseNoiseSummary().c_str());
   EXPECT_NEAR(limit, std::sqrt(0.030 / 0.008), 0.2);
   EXPECT_EQ(st.fuse_depth_limit_m, limit);
+  EXPECT_GT(st.ms_noise, 0.0);  // measured on this frame, outside st.ms
   EXPECT_NE(map.fuseNoiseSummary().find("beyond"), std::string::npos) << map.fuseNoiseSummary();
   int deeper = 0;
   for (float z : d.data) deeper += z > 0.0f && z > static_cast<float>(limit);
@@ -420,6 +421,7 @@ TEST(Fusion, MaxFuseNoiseMeasuresTheSensorAndLeavesItsNoisiestReturnsOut) {
   const FuseStats later = map.fuse(noisyTiltedPlane(0.001, 4), kK, Eigen::Isometry3d::Identity());
   EXPECT_EQ(map.noiseFuseDepth(), limit);
   EXPECT_EQ(later.fuse_depth_limit_m, limit);
+  EXPECT_EQ(later.ms_noise, 0.0);  // not measured again
   EXPECT_GT(later.beyond_fuse_depth, 1000);
   // max_fuse_depth nearer than the noise limit wins.
   cfg.max_fuse_depth_m = 1.5;

@@ -272,8 +272,21 @@ TEST(Pca, CreaseCellsArePooledOnTheirOwnPlane) {
   EXPECT_LT(sum_own, 0.93 * sum_across);
   // Cells whose patch is flat are pooled once, as before.
   EXPECT_LT(changed, static_cast<int>(across.size()) / 4);
+  // Pooled over 3x3 cells only (an L515's), the cells are pooled once whatever their thickness.
+  PcaConfig narrow;
+  narrow.normal_radius_cells = 1;
+  narrow.noise_sigma_const_m = 0.003;
+  const CellCloud once = reduceToCells(depth, l515(), narrow);
+  narrow.crease_sigmas = 0.0;
+  const CellCloud off = reduceToCells(depth, l515(), narrow);
+  ASSERT_EQ(once.cells.size(), off.cells.size());
+  for (std::size_t i = 0; i < once.cells.size(); ++i)
+    ASSERT_EQ(once.cells[i].normal_C, off.cells[i].normal_C) << i;
   PcaConfig bad;
   bad.crease_sigmas = -1.0;
+  EXPECT_FALSE(bad.validate(640, 480).empty());
+  bad = PcaConfig{};
+  bad.crease_min_radius_cells = 0;
   EXPECT_FALSE(bad.validate(640, 480).empty());
 }
 

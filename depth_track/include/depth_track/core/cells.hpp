@@ -88,6 +88,13 @@ struct PcaConfig {
   /// moves along it, those cells pulled the rendered Hall1 corridor's estimate back to zero
   /// motion (docs/tracking.md, "Normals across creases"). 0 = off, or no noise model known.
   double crease_sigmas = 2.0;
+  /// ... only where normals are pooled over at least this radius (cells): the lean across a
+  /// crease grows with the pooled window, and auto_noise pools over 7x7 cells or more only for
+  /// stereo-class noise (a D435: 9x9). Pooled again at 3x3 (L515) the normals of a cabinet's
+  /// outline on a wall, which pin the slide along the wall, followed the wall: rendered
+  /// wall_slide with L515 noise drifted 5.07 / 5.48 mm/s on seeds 7 / 13 (target 5; 2.21 / 2.56
+  /// without).
+  int crease_min_radius_cells = 3;
   /// Regulariser added to covariances for cov_inv_sqrt, m^2: (1 mm)^2, about the depth noise of a
   /// good sensor, so the Förstner–Moonen metric does not weigh sub-noise thicknesses.
   double min_eigenvalue_m2 = 1e-6;

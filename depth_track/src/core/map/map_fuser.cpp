@@ -329,11 +329,16 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
       const map_detail::ReadLock lock(m.mutex);
       frames = m.noise_settled ? -1 : m.noise_frames;
     }
-    if (frames >= 0) noise = measureNoiseLimit(depth, intrinsics_, config, frames + 1);
+    if (frames >= 0) {
+      const auto t_noise = std::chrono::steady_clock::now();
+      noise = measureNoiseLimit(depth, intrinsics_, config, frames + 1);
+      st.ms_noise = msSince(t_noise);
+    }
   }
   const map_detail::WriteLock lock(m.mutex);
   const auto t_start = std::chrono::steady_clock::now();
-  st.ms_lock_wait = std::chrono::duration<double, std::milli>(t_start - t_call).count();
+  st.ms_lock_wait =
+      std::chrono::duration<double, std::milli>(t_start - t_call).count() - st.ms_noise;
   const std::uint32_t frame_before = m.frame;
   ++m.frame;
   if (m.frame == 0) ++m.frame;  // 0 marks "never touched"

@@ -111,6 +111,9 @@ struct FuseStats {
   int carve_rays = 0;         ///< rays walked for carving
   double ms = 0.0;            ///< wall time of the fusion, ms (after the write lock was taken)
   double ms_lock_wait = 0.0;  ///< time spent waiting for the write lock (readers casting), ms
+  /// Time the noise limit spent measuring the frame's noise before the lock (on the map's first
+  /// frames only, until measured), ms; not part of `ms`.
+  double ms_noise = 0.0;
 };
 
 /// Occupancy state of one voxel.
