@@ -333,9 +333,9 @@ INSTANTIATE_TEST_SUITE_P(Seeds, WallSlideD435, ::testing::Values(1, 2, 3, 5, 11)
 // What the release margin is for: near the margin a direction's gain switches it on and off from
 // frame to frame, and each frame that releases it (seed 5: the first frame against a new keyframe,
 // reading 4.1 times its floor) takes a whole step, 8-14 mm along the wall there. Seed 11 without
-// the hysteresis: 7.38 mm/s, with it 1.39. Since 2026-12-05 a D435's normals are pooled again at
-// creases (PcaConfig::crease_sigmas), and seed 11 no longer shows it: 2.24 mm/s without, 1.49
-// with. The mechanism is shown with the pooling of its time (crease_sigmas 0).
+// the hysteresis: 7.38 mm/s, with it 1.39. With normals pooled again at creases (the option
+// PcaConfig::crease_sigmas 2) seed 11 does not show it: 2.24 mm/s without, 1.49 with; the test
+// pins the default pooling (crease_sigmas 0) it was written for.
 TEST(WallSlideD435Hysteresis, SingleFramesReleasingADirectionSlide) {
   TrackerConfig base;
   base.pca.crease_sigmas = 0.0;

@@ -274,6 +274,7 @@ TEST(Pca, CreaseCellsArePooledOnTheirOwnPlane) {
   EXPECT_LT(changed, static_cast<int>(across.size()) / 4);
   // Pooled over 3x3 cells only (an L515's), the cells are pooled once whatever their thickness.
   PcaConfig narrow;
+  narrow.crease_sigmas = 2.0;
   narrow.normal_radius_cells = 1;
   narrow.noise_sigma_const_m = 0.003;
   const CellCloud once = reduceToCells(depth, l515(), narrow);

@@ -167,26 +167,27 @@ TEST(WholeRun, Room3D435Defaults) {
 // solved); over the other 18 the largest error spans 61-147 mm, the end drift 14-142 mm and the
 // rotation error reaches 0.450 deg. The guards then were 1.4x the largest of those 18: 210 mm
 // largest error and 200 mm end drift, and 0.5 deg (seed 1: 0.434 deg, 69.93 mm, 42.72 mm).
-// Since 2026-12-05 a cell whose pooled patch spans a crease is pooled again on its own plane
-// (PcaConfig::crease_sigmas; docs/tracking.md, "Normals across creases"): the crease cells that
-// held seeds 6 and 19 at zero motion lean no more, and all 20 seeds track. Seeds 1-20: largest
+// With crease pooling (PcaConfig::crease_sigmas 2, an option since 2026-12-05, off by default:
+// it costs the Hall1 D435 bag of docs/results.md; docs/tracking.md, "Normals across creases") the
+// crease cells that held seeds 6 and 19 at zero motion lean no more and all 20 seeds track: largest
 // position error 22.7/26.7/56.9/32.1/31.8/41.6/104.1/34.3/74.8/29.9/20.6/34.3/61.1/40.6/126.4/
 // 31.3/32.3/30.6/92.1/119.0 mm, end drift 18.8/10.4/54.0/22.7/13.8/30.5/102.2/24.1/62.3/15.9/
 // 5.6/24.8/46.8/42.6/121.7/21.0/26.3/27.1/90.1/116.0 mm, rotation up to 0.447 deg (seed 15).
-// Guards 1.4x the largest: 180 mm, 175 mm, and 0.5 deg. Seed 1 here: 0.309 deg, 22.73 mm, end
-// drift 18.83 mm.
+// The defaults keep the guards above (seed 1 here: 0.434 deg, 69.93 mm, end drift 42.72 mm).
 TEST(WholeRun, Hall1D435Defaults) {
   const RunResult r = trackRendered("hall1", TrackerConfig{}, sim::NoiseModel::kD435);
-  expectTrackedWithin(r, 0.5, 180.0);
-  EXPECT_LE(r.errors.end_drift_mm, 175.0);
+  expectTrackedWithin(r, 0.5, 210.0);
+  EXPECT_LE(r.errors.end_drift_mm, 200.0);
 }
 
-// The failure the crease pooling mended: with noise seed 6 the corridor's start read as standing
-// still (the estimate 988 mm behind at frame 150 with crease_sigmas 0, the pooling before
-// 2026-12-05), held there by cells whose normals were pooled across the wall-floor crease.
-// Measured since: 12.3 mm end drift over the first 150 frames (largest position error 15.8 mm).
-TEST(WholeRun, Hall1D435Seed6LeavesTheStart) {
-  const RunResult r = trackRendered("hall1", TrackerConfig{}, sim::NoiseModel::kD435, 6, 150);
+// What the crease pooling option mends: with noise seed 6 the corridor's start reads as standing
+// still at the defaults (the estimate 988 mm behind at frame 150), held there by cells whose
+// normals are pooled across the wall-floor crease. With crease_sigmas 2: 12.3 mm end drift over
+// the first 150 frames (largest position error 15.8 mm).
+TEST(WholeRun, Hall1D435Seed6LeavesTheStartWithCreasePooling) {
+  TrackerConfig creases;
+  creases.pca.crease_sigmas = 2.0;
+  const RunResult r = trackRendered("hall1", creases, sim::NoiseModel::kD435, 6, 150);
   EXPECT_EQ(r.tracked, r.frames);
   EXPECT_LE(r.errors.end_drift_mm, 100.0);
 }
