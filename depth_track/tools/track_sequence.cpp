@@ -197,6 +197,7 @@ int main(int argc, char** argv) {
     }
     Trajectory est, gt;
     std::vector<Eigen::Vector3d> surface;  // --map-quality: the visible true surface
+    const Eigen::Isometry3d T_map_run = T_run_map.inverse();
     RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
@@ -242,7 +243,7 @@ int main(int argc, char** argv) {
       }
       if (map_quality && i % 20 == 0)
         for (const Eigen::Vector3d& p_run : rendered->run().visibleSurface(i, 4)) {
-          const Eigen::Vector3d p = T_run_map.inverse() * p_run;
+          const Eigen::Vector3d p = T_map_run * p_run;
           if (mapper->map().region().contains(p)) surface.push_back(p);
         }
       if (st.tracked)
@@ -332,8 +333,7 @@ int main(int argc, char** argv) {
       const std::string noise_limit = vm.fuseNoiseSummary();
       if (!noise_limit.empty()) std::printf("map noise limit: %s\n", noise_limit.c_str());
       if (map_quality) {
-        // "Within one voxel": the voxel is, or touches, one the surface passes through.
-        const double tol = (1.0 + std::sqrt(3.0) / 2.0) * vm.config().voxel_size_m;
+        const double tol = oneVoxelTolerance(vm.config().voxel_size_m);
         const sim::Scene& scene = rendered->run().scene;
         const SurfaceQuality q = surfaceQuality(
             vm, [&](const Eigen::Vector3d& p) { return scene.distanceTo(T_run_map * p); }, surface,

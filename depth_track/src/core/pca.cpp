@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "depth_track/core/cells.hpp"
+#include "depth_track/core/depth_noise.hpp"
 #include "simd4.hpp"
 
 namespace depth_track {
@@ -341,8 +342,10 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
   const float max_d2 = static_cast<float>(config.normal_merge_dist_m * config.normal_merge_dist_m);
   std::vector<Eigen::Vector3f> normals(n_cells);
   const double t = config.crease_sigmas;
-  const bool repool = t > 0.0 && r >= config.crease_min_radius_cells &&
-                      (config.noise_sigma_const_m > 0.0 || config.noise_sigma_quad_per_m > 0.0);
+  DepthNoiseModel noise;
+  noise.const_m = config.noise_sigma_const_m;
+  noise.quad_per_m = config.noise_sigma_quad_per_m;
+  const bool repool = t > 0.0 && r >= config.crease_min_radius_cells && noise.known();
   // Pools cell i's neighbours (those within the merge distance; with `plane`, only those whose
   // mean lies within tol of the plane through cell i's mean with normal *plane) and returns the
   // pooled normal, facing the camera, and the pooled patch's variance along it (m^2).
@@ -391,8 +394,7 @@ void poolNormals(const PcaConfig& config, CellCloud* cloud) {
     // Across a crease the pooled plane is a compromise of the two surfaces, off both by more than
     // the noise; the neighbours near that plane through the cell's own mean are, for the most
     // part, those on the cell's own surface.
-    const double z = cloud->cells[i].mean_C.z();
-    const double sigma = config.noise_sigma_const_m + config.noise_sigma_quad_per_m * z * z;
+    const double sigma = noise.sigmaAt(cloud->cells[i].mean_C.z());
     if (thickness > t * t * sigma * sigma) {
       const Eigen::Vector3f across = normals[i];
       normals[i] = pool(i, &across, static_cast<float>(t * sigma), nullptr);

@@ -135,12 +135,14 @@ class FusionNodelet : public nodelet::Nodelet {
           fuser_.over(map, K, [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); });
       const FuseStats fs = fuser.fuse(depth, T_map_C);
       fuse_depth_limit_m_ = fs.fuse_depth_limit_m;
-      // The noise limit (max_fuse_noise) is set on the map's first frames: say once what it
-      // measured and what it leaves out.
-      const std::string noise_limit = map->fuseNoiseSummary();
-      if (noise_limit != logged_noise_limit_) {
-        logged_noise_limit_ = noise_limit;
-        NODELET_INFO("fusion: depth noise %s", noise_limit.c_str());
+      // The noise limit (max_fuse_noise) is measured on the map's first frames (ms_noise > 0):
+      // say once what it measured and what it leaves out.
+      if (fs.ms_noise > 0.0) {
+        const std::string noise_limit = map->fuseNoiseSummary();
+        if (noise_limit != logged_noise_limit_) {
+          logged_noise_limit_ = noise_limit;
+          NODELET_INFO("fusion: depth noise %s", noise_limit.c_str());
+        }
       }
       if (config_.flush_every > 0 && map->framesFused() % config_.flush_every == 0) map->flush();
       ++fused_;

@@ -62,7 +62,7 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   auto dist = [&](const Eigen::Vector3d& p) { return run.scene.distanceTo(p); };
   // "Within one voxel of a true surface": the voxel is, or touches, a voxel the surface passes
   // through, i.e. its centre lies within one edge plus half a diagonal, (1 + sqrt(3)/2) s.
-  const double tol = (1.0 + std::sqrt(3.0) / 2.0) * s;
+  const double tol = oneVoxelTolerance(s);
   const SurfaceQuality q = surfaceQuality(tracked.map(), dist, surface, tol);
   const SurfaceQuality q_gt = surfaceQuality(truth.map(), dist, surface, tol);
   const SurfaceQuality q_strict = surfaceQuality(tracked.map(), dist, surface, s);

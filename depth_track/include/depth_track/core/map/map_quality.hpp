@@ -3,6 +3,7 @@
 /// precision and completeness against known geometry, and the voxel-set difference between two
 /// maps (e.g. fused from tracked vs ground-truth poses). ROS-free core.
 #include <Eigen/Core>
+#include <cmath>
 #include <functional>
 #include <vector>
 
@@ -25,6 +26,10 @@ struct SurfaceQuality {
 /// have an occupied voxel whose centre lies within `tolerance_m`. A natural tolerance is one
 /// voxel plus half its diagonal (the centre of a voxel holding a surface point lies within
 /// sqrt(3)/2 voxel of it). Thread-safe against other const uses of the map.
+/// That tolerance for voxels of edge voxel_m: (1 + sqrt(3) / 2) voxel_m, "within one voxel" (the
+/// voxel is, or touches, one the surface passes through).
+inline double oneVoxelTolerance(double voxel_m) { return (1.0 + 0.5 * std::sqrt(3.0)) * voxel_m; }
+
 SurfaceQuality surfaceQuality(
     const VoxelMap& map, const std::function<double(const Eigen::Vector3d&)>& distance_to_surface_m,
     const std::vector<Eigen::Vector3d>& surface_W, double tolerance_m);
