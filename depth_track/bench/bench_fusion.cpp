@@ -63,19 +63,21 @@ double threadCpuMs() {
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
-// state.range(0): 0 = hit-only, 1 = probabilistic; range(1): carve stride (px).
+// state.range(0): 0 = hit-only, 1 = probabilistic; range(1): carve stride (px); range(2): snap
+// cell (px, 0 = returns fused as measured).
 void BM_Fuse(benchmark::State& state) {
   const Frames& f = frames();
   MapConfig cfg;
   cfg.model = state.range(0) == 0 ? UpdateModel::kHitOnly : UpdateModel::kProbabilistic;
   cfg.carve_stride_px = static_cast<int>(state.range(1));
+  cfg.snap_cell_px = static_cast<int>(state.range(2));
   VoxelMap map(cfg);
   map.placeRegion(f.T_W_C.front());
   MapFuser fuser(map, f.run.intrinsics);
   for (std::size_t i = 0; i < f.depth.size(); ++i) fuser.fuse(f.depth[i], f.T_W_C[i]);
   std::vector<double> ms, cpu_ms;
   std::size_t i = 0;
-  double hits = 0, misses = 0, rays = 0;
+  double hits = 0, misses = 0, rays = 0, snapped = 0;
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     const double c0 = threadCpuMs();
@@ -83,12 +85,14 @@ void BM_Fuse(benchmark::State& state) {
     cpu_ms.push_back(threadCpuMs() - c0);
     ms.push_back(msSince(t0));
     hits += st.hit_updates, misses += st.miss_updates, rays += st.carve_rays;
+    snapped += st.snapped_pixels;
     i = (i + 1) % f.depth.size();
   }
   const double n = std::max<double>(1.0, static_cast<double>(ms.size()));
   state.counters["hits_per_frame"] = hits / n;
   state.counters["misses_per_frame"] = misses / n;
   state.counters["carve_rays_per_frame"] = rays / n;
+  if (cfg.snap_cell_px > 0) state.counters["snapped_per_frame"] = snapped / n;
   state.counters["median_ms"] = median(ms);
   state.counters["median_cpu_ms"] = median(cpu_ms);
   state.counters["occupied"] = static_cast<double>(map.occupiedCount());
@@ -98,14 +102,18 @@ void BM_Fuse(benchmark::State& state) {
   state.SetLabel(toString(cfg.model) +
                  (cfg.model == UpdateModel::kProbabilistic
                       ? ", carve stride " + std::to_string(cfg.carve_stride_px)
+                      : std::string()) +
+                 (cfg.snap_cell_px > 0
+                      ? ", returns snapped to " + std::to_string(cfg.snap_cell_px) + " px cells"
                       : std::string()));
 }
 BENCHMARK(BM_Fuse)
-    ->Args({0, 1})
-    ->Args({1, 8})
-    ->Args({1, 12})
-    ->Args({1, 4})
-    ->Args({1, 1})
+    ->Args({0, 1, 0})
+    ->Args({1, 8, 0})
+    ->Args({1, 8, 16})
+    ->Args({1, 12, 0})
+    ->Args({1, 4, 0})
+    ->Args({1, 1, 0})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 

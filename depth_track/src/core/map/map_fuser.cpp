@@ -246,6 +246,7 @@ constexpr int kNoiseFrames = 10;
 struct NoiseLimit {
   bool settled = false;  // measured (or unmeasurable for good): no further frame is measured
   double depth_m = std::numeric_limits<double>::infinity();  // infinity = no limit
+  DepthNoiseModel model;  // sigma(z) when measured
   std::string summary;
 };
 
@@ -276,8 +277,13 @@ NoiseLimit measureNoiseLimit(const DepthImage& depth, const PinholeIntrinsics& i
     return out;
   }
   out.settled = true;
-  const double z = noise.depthAtSigma(limit_m);
+  out.model = noise;
   char buf[320];
+  if (!(config.max_fuse_noise_voxels > 0.0)) {
+    out.summary = estimator.summary() + "; no noise limit (max_fuse_noise 0)";
+    return out;
+  }
+  const double z = noise.depthAtSigma(limit_m);
   if (z == 0.0) {
     std::snprintf(buf, sizeof(buf),
                   "%s; above the limit of %s at every depth (voxels finer than this sensor's "
@@ -294,6 +300,169 @@ NoiseLimit measureNoiseLimit(const DepthImage& depth, const PinholeIntrinsics& i
   }
   out.summary = buf;
   return out;
+}
+
+
+// Least-squares moments of inverse depth w over the pixel ray (x, y), for snapToCellPlanes.
+struct Plane {
+  double a = 0.0, b = 0.0, c = 0.0;  // w = a + b x + c y
+  double at(double x, double y) const { return a + b * x + c * y; }
+};
+struct Moments {
+  double n = 0, sx = 0, sy = 0, sw = 0, sxx = 0, sxy = 0, syy = 0, sxw = 0, syw = 0;
+  void add(double x, double y, double w) {
+    n += 1.0, sx += x, sy += y, sw += w;
+    sxx += x * x, sxy += x * y, syy += y * y, sxw += x * w, syw += y * w;
+  }
+  void remove(const Moments& o) {
+    n -= o.n, sx -= o.sx, sy -= o.sy, sw -= o.sw;
+    sxx -= o.sxx, sxy -= o.sxy, syy -= o.syy, sxw -= o.sxw, syw -= o.syw;
+  }
+  // The plane through the means, its slopes from the centred moments (uncentred sums in double
+  // keep ~1e-10 of relative precision over a cell's rays); false when the returns are on a line.
+  bool solve(Plane* p) const {
+    if (n < 3.0) return false;
+    const double mx = sx / n, my = sy / n, mw = sw / n;
+    const double cxx = sxx - n * mx * mx, cxy = sxy - n * mx * my, cyy = syy - n * my * my;
+    const double cxw = sxw - n * mx * mw, cyw = syw - n * my * mw;
+    const double det = cxx * cyy - cxy * cxy;
+    if (!(det > 1e-6 * cxx * cyy)) return false;
+    p->b = (cyy * cxw - cxy * cyw) / det;
+    p->c = (cxx * cyw - cxy * cxw) / det;
+    p->a = mw - p->b * mx - p->c * my;
+    return std::isfinite(p->a) && std::isfinite(p->b) && std::isfinite(p->c);
+  }
+};
+
+// MapConfig::snap_cell_px: `out` is `in` with the returns of each planar cell moved onto the
+// cell's fitted plane. In the camera frame a plane n.p = d holds the points z (x, y, 1) with
+// 1/z = (n_x x + n_y y + n_z) / d, so inverse depth w = 1/z is fitted linearly in the pixel ray
+// (x, y); a return's distance from the plane in depth is z^2 (w - w_fit) to first order, judged
+// against sigma(z) at the cell's mean depth. Returns only up to z_max take part (deeper ones are
+// not fused anyway). Returns the number of returns snapped.
+int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int cell,
+                     double voxel_m, const DepthNoiseModel& noise, float z_max, DepthImage& out) {
+  constexpr double kInlierSigmas = 3.0;  // a return within this of the plane is on it
+  constexpr double kPlanarRms = 1.5;     // a cell is planar when its inliers' RMS is within this
+  const int w = in.width, h = in.height;
+  out.width = w;
+  out.height = h;
+  out.data = in.data;
+  int snapped = 0;
+  // One cell's returns: pixel index, pixel ray (x, y), inverse depth, z^2.
+  constexpr int kMaxCell = 32 * 32;
+  int px[kMaxCell];
+  double xs[kMaxCell], ys[kMaxCell], ws[kMaxCell], z2[kMaxCell];
+  bool inlier[kMaxCell];
+  // Snaps the cell [u0, u0 + size) x [v0, v0 + size) when it is planar; false when it is not.
+  auto snapCell = [&](int u0, int v0, int size) {
+    const int u1 = std::min(w, u0 + size), v1 = std::min(h, v0 + size);
+    const int min_valid = std::max(6, size * size / 4);
+    // The returns and the moments of the fit, gathered in one pass.
+    Moments all;
+    int n = 0;
+    double zsum = 0.0;
+    for (int v = v0; v < v1; ++v) {
+      const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+      const double y = yv[v];
+      for (int u = u0; u < u1; ++u) {
+        const float z = row[u];
+        if (!(z > 0.0f) || !(z <= z_max)) continue;
+        const double x = xu[u], iz = 1.0 / z;
+        px[n] = v * w + u;
+        xs[n] = x, ys[n] = y, ws[n] = iz, z2[n] = double{z} * z;
+        all.add(x, y, iz);
+        zsum += z;
+        ++n;
+      }
+    }
+    if (n < min_valid) return false;
+    const double sigma = noise.sigmaAt(zsum / n);
+    if (!(sigma > 0.0)) return false;
+    const double gate = kInlierSigmas * sigma;
+    // Fit w = a + b x + c y, judge every return against the plane, and fit again without the
+    // returns more than kInlierSigmas off it (another surface in the cell, or a stray return):
+    // their moments are taken off the totals.
+    Moments fit = all;
+    Plane pl;
+    int n_in = n;
+    double ss = 0.0;
+    for (int pass = 0; pass < 2; ++pass) {
+      if (!fit.solve(&pl)) return false;
+      Moments out_of_plane;
+      n_in = 0;
+      ss = 0.0;
+      for (int k = 0; k < n; ++k) {
+        const double e = (ws[k] - pl.at(xs[k], ys[k])) * z2[k];
+        inlier[k] = std::abs(e) <= gate;
+        if (inlier[k]) {
+          ++n_in;
+          ss += e * e;
+        } else {
+          out_of_plane.add(xs[k], ys[k], ws[k]);
+        }
+      }
+      if (n_in < min_valid || 2 * n_in < n) return false;
+      if (n_in == n || pass == 1) break;  // no return left out: a second fit would be the same
+      fit = all;
+      fit.remove(out_of_plane);
+    }
+    if (ss > kPlanarRms * kPlanarRms * sigma * sigma * n_in) return false;
+    for (int k = 0; k < n; ++k) {
+      if (!inlier[k]) continue;
+      const double wfit = pl.at(xs[k], ys[k]);
+      if (!(wfit > 0.0)) continue;
+      out.data[px[k]] = static_cast<float>(1.0 / wfit);
+      ++snapped;
+    }
+    return true;
+  };
+  // Cell sizes: a cell is fitted at the smallest size whose plane is known to half a voxel (the
+  // plane's offset error sigma / sqrt(n) <= voxel / 2 needs n >= 4 (sigma / voxel)^2 returns), so
+  // that quiet or near returns are fitted on small cells, which follow curved surfaces and reach
+  // edges, and noisy far ones on large cells, which average their noise. A cell that is not one
+  // plane (an edge, a crease, a small object) is tried again as four quarters, down to kMinCell
+  // pixels. Returns and their depth sums per kMinCell block first, so that a cell's count and
+  // mean depth come without reading its pixels.
+  constexpr int kMinCell = 4;
+  const int bw = (w + kMinCell - 1) / kMinCell, bh = (h + kMinCell - 1) / kMinCell;
+  std::vector<int> bn(static_cast<std::size_t>(bw) * bh, 0);
+  std::vector<double> bz(bn.size(), 0.0);
+  for (int v = 0; v < h; ++v) {
+    const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+    int* nrow = bn.data() + static_cast<std::size_t>(v / kMinCell) * bw;
+    double* zrow = bz.data() + static_cast<std::size_t>(v / kMinCell) * bw;
+    for (int u = 0; u < w; ++u) {
+      const float z = row[u];
+      if (!(z > 0.0f) || !(z <= z_max)) continue;
+      ++nrow[u / kMinCell];
+      zrow[u / kMinCell] += z;
+    }
+  }
+  const double inv_voxel = 1.0 / voxel_m;
+  auto snapTree = [&](auto& self, int u0, int v0, int size) -> void {
+    if (u0 >= w || v0 >= h) return;
+    const int half = size / 2;
+    if (half >= kMinCell) {
+      int n = 0;
+      double zsum = 0.0;
+      for (int by = v0 / kMinCell; by < std::min(bh, (v0 + size) / kMinCell); ++by)
+        for (int bx = u0 / kMinCell; bx < std::min(bw, (u0 + size) / kMinCell); ++bx) {
+          n += bn[static_cast<std::size_t>(by) * bw + bx];
+          zsum += bz[static_cast<std::size_t>(by) * bw + bx];
+        }
+      if (n == 0) return;
+      const double r = noise.sigmaAt(zsum / n) * inv_voxel;
+      const bool quarters_suffice = n >= 16.0 * r * r;  // n / 4 >= 4 (sigma / voxel)^2
+      if (quarters_suffice || !snapCell(u0, v0, size))
+        for (int q = 0; q < 4; ++q) self(self, u0 + (q & 1) * half, v0 + (q >> 1) * half, half);
+      return;
+    }
+    snapCell(u0, v0, size);
+  };
+  for (int v0 = 0; v0 < h; v0 += cell)
+    for (int u0 = 0; u0 < w; u0 += cell) snapTree(snapTree, u0, v0, cell);
+  return snapped;
 }
 
 }  // namespace
@@ -323,7 +492,7 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   // The noise limit is measured on the map's first frames, before the write lock (the
   // measurement reads only the frame, and readers need not wait for it).
   std::optional<NoiseLimit> noise;
-  if (config.max_fuse_noise_voxels > 0.0) {
+  if (config.max_fuse_noise_voxels > 0.0 || config.snap_cell_px > 0) {
     int frames = 0;
     {
       const map_detail::ReadLock lock(m.mutex);
@@ -357,7 +526,13 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
                                     : std::numeric_limits<double>::infinity(),
                                 noise_depth);
   st.fuse_depth_limit_m = std::isfinite(z_max) ? z_max : 0.0;
-  fuseHits(m, depth, fr, static_cast<float>(z_max), st);
+  const DepthNoiseModel& noise_model = settles ? noise->model : m.noise_model;
+  const bool snap = config.snap_cell_px > 0 && noise_model.known();
+  if (snap)
+    st.snapped_pixels = snapToCellPlanes(depth, ray_x_.data(), ray_y_.data(), config.snap_cell_px,
+                                         config.voxel_size_m, noise_model, static_cast<float>(z_max), snapped_);
+  const DepthImage& fused = snap ? snapped_ : depth;
+  fuseHits(m, fused, fr, static_cast<float>(z_max), st);
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
@@ -368,11 +543,12 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
     if (settles) {
       m.noise_settled = true;
       m.noise_depth_m = noise->depth_m;
+      m.noise_model = noise->model;
     }
     if (!noise->summary.empty()) m.noise_summary = noise->summary;
   }
   if (config.model == UpdateModel::kProbabilistic)
-    carve(m, depth, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, z_max, st);
+    carve(m, fused, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, z_max, st);
   ++map_.frames_fused_;
   st.ms = msSince(t_start);
   timing_.add(st.ms);

@@ -50,6 +50,10 @@ std::vector<MapperParamSpec> makeParams() {
                   "fuse (and carve) returns only where the depth noise measured on the first "
                   "frames stays below this many voxels; 0 = off",
                   [](MapperConfig& c) -> double& { return c.map.max_fuse_noise_voxels; }));
+  p.push_back(num("snap_cell", "px",
+                  "fuse each planar cell's returns at its fitted plane, cells this many pixels "
+                  "square; 0 = fuse returns as measured",
+                  [](MapperConfig& c) -> int& { return c.map.snap_cell_px; }));
   p.push_back(num("flush_every", "frames", "frames between OcTree flushes (0 = when saving)",
                   [](MapperConfig& c) -> int& { return c.flush_every; }));
   // ---- ray-cast range (virtual images) ----

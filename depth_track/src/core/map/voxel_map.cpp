@@ -67,6 +67,9 @@ std::vector<std::string> MapConfig::validate() const {
     p.push_back("max_fuse_depth_m must be >= 0 m (0 = no limit)");
   if (!(std::isfinite(max_fuse_noise_voxels) && max_fuse_noise_voxels >= 0.0))
     p.push_back("max_fuse_noise_voxels must be >= 0 voxels (0 = off)");
+  if (snap_cell_px != 0 && snap_cell_px != 4 && snap_cell_px != 8 && snap_cell_px != 16 &&
+      snap_cell_px != 32)
+    p.push_back("snap_cell_px must be 0 (off), 4, 8, 16 or 32 pixels");
   return p;
 }
 

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "depth_track/core/depth_noise.hpp"
 #include "depth_track/core/map/voxel_map.hpp"
 #include "depth_track/core/se3.hpp"
 
@@ -161,6 +162,7 @@ struct VoxelMap::Impl {
   int noise_frames = 0;
   bool noise_settled = false;
   double noise_depth_m = std::numeric_limits<double>::infinity();
+  DepthNoiseModel noise_model;  // sigma(z) once measured (unknown: not measured)
   std::string noise_summary;
   std::size_t occupied_count = 0;
   std::size_t block_count = 0;

@@ -34,6 +34,7 @@ class MapFuser {
   VoxelMap& map_;
   PinholeIntrinsics intrinsics_;
   std::vector<float> ray_x_, ray_y_;  ///< (u - cx) / fx per column, (v - cy) / fy per row
+  DepthImage snapped_;                ///< the frame with returns snapped (MapConfig::snap_cell_px)
   RunningStats timing_;
 };
 

@@ -92,6 +92,15 @@ struct MapConfig {
   /// 5 mm put it at 2.4 m for a rendered D435, beyond the 4 m range for a Kinect or an L515
   /// (docs/mapping.md, "The noise limit"). The lower of this depth and max_fuse_depth_m applies.
   double max_fuse_noise_voxels = 6.0;
+  /// Returns snapped to their cell's plane before fusion, on cells of this many pixels square
+  /// (0 = off): each cell's returns are fitted with a plane (inverse depth linear in the pixel
+  /// ray, exact for a plane), and where the cell is a plane within its noise, the returns within
+  /// 3 sigma(z) of it are fused at the plane's depth instead of their own. One-hit occupancy
+  /// marks every voxel a noisy return lands in; snapping puts a wall's hits on the wall instead
+  /// of on a shell several sigma deep. Cells that are not planar (edges, creases, small objects)
+  /// and returns off the plane are fused as measured. Needs sigma(z), measured on the first
+  /// frames as for max_fuse_noise_voxels; frames before it is known are fused as measured.
+  int snap_cell_px = 0;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
@@ -106,6 +115,7 @@ struct FuseStats {
   /// The depth limit the call applied (the lower of max_fuse_depth_m and the noise limit),
   /// metres; 0 = none.
   double fuse_depth_limit_m = 0.0;
+  int snapped_pixels = 0;     ///< returns fused at their cell's plane (MapConfig::snap_cell_px)
   int hit_updates = 0;        ///< voxels updated as hit
   int miss_updates = 0;       ///< voxels updated as miss (carving)
   int carve_rays = 0;         ///< rays walked for carving
