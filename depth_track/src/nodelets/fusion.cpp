@@ -107,6 +107,8 @@ class FusionNodelet : public nodelet::Nodelet {
     d.add("frames not fused (not tracked)", not_fused_.load());
     d.add("publications", publications_.load());
     d.addf("fuse depth limit (m, 0 = none)", "%.2f", fuse_depth_limit_m_.load());
+    d.addf("returns fused at their cell's plane (last frame, %)", "%.1f",
+           snapped_percent_.load());
     d.addf("since last publication (s)", "%.1f", last_publish_wall_s_ > 0 ? since : -1.0);
   }
 
@@ -135,6 +137,7 @@ class FusionNodelet : public nodelet::Nodelet {
           fuser_.over(map, K, [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); });
       const FuseStats fs = fuser.fuse(depth, T_map_C);
       fuse_depth_limit_m_ = fs.fuse_depth_limit_m;
+      snapped_percent_ = fs.valid_pixels > 0 ? 100.0 * fs.snapped_pixels / fs.valid_pixels : 0.0;
       // The noise limit (max_fuse_noise) is measured on the map's first frames (ms_noise > 0):
       // say once what it measured and what it leaves out.
       if (fs.ms_noise > 0.0) {
@@ -332,6 +335,7 @@ class FusionNodelet : public nodelet::Nodelet {
   double publish_period_s_ = 1.0;
   MapperConfig config_;
   std::atomic<double> fuse_depth_limit_m_{0.0};  ///< the last fused frame's (FuseStats)
+  std::atomic<double> snapped_percent_{0.0};     ///< share of its returns snapped (FuseStats)
   std::string logged_noise_limit_;               ///< the noise limit's summary as last logged
   std::shared_ptr<GraphContext> ctx_;
   double last_stamp_ = -1.0;

@@ -92,15 +92,17 @@ struct MapConfig {
   /// 5 mm put it at 2.4 m for a rendered D435, beyond the 4 m range for a Kinect or an L515
   /// (docs/mapping.md, "The noise limit"). The lower of this depth and max_fuse_depth_m applies.
   double max_fuse_noise_voxels = 6.0;
-  /// Returns snapped to their cell's plane before fusion, on cells of this many pixels square
-  /// (0 = off): each cell's returns are fitted with a plane (inverse depth linear in the pixel
-  /// ray, exact for a plane), and where the cell is a plane within its noise, the returns within
-  /// 3 sigma(z) of it are fused at the plane's depth instead of their own. One-hit occupancy
-  /// marks every voxel a noisy return lands in; snapping puts a wall's hits on the wall instead
-  /// of on a shell several sigma deep. Cells that are not planar (edges, creases, small objects)
-  /// and returns off the plane are fused as measured. Needs sigma(z), measured on the first
-  /// frames as for max_fuse_noise_voxels; frames before it is known are fused as measured.
-  int snap_cell_px = 0;
+  /// Returns fused at their cell's plane (0 = off: every return fused where it was measured).
+  /// One-hit occupancy marks every voxel a noisy return lands in, so a wall becomes a shell
+  /// several sigma(z) deep. Each cell's returns are fitted with a plane (inverse depth is linear
+  /// in the pixel ray for a plane), and where the cell is one plane within its noise (RMS within
+  /// 1.5 sigma(z)), its returns within 3 sigma(z) of the plane are fused at the plane's depth.
+  /// Cells start at this many pixels square and are quartered down to 4 px: to the smallest
+  /// size whose plane is known to half a voxel (sigma / sqrt(n) <= voxel / 2), and where a cell
+  /// is not one plane (an edge, a crease, a small object); what is left is fused as measured.
+  /// Needs sigma(z), measured on the first frames as for max_fuse_noise_voxels; frames before
+  /// it is known are fused as measured (docs/mapping.md, "Snapping returns to their cell's plane").
+  int snap_cell_px = 16;
 
   /// Every problem at once (empty = valid).
   std::vector<std::string> validate() const;
