@@ -202,6 +202,7 @@ int main(int argc, char** argv) {
     int tracked = 0, bad_frames = 0;
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
     std::map<std::string, int> failures;
+    long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
     for (std::size_t i = 0; i < n; ++i) {
       FrameStatus st;
       try {
@@ -211,7 +212,9 @@ int main(int argc, char** argv) {
           if (fuse_pose_of[i] < 0)
             throw std::invalid_argument("no pose in --fuse-poses within 20 ms of this frame");
           const StampedPose& known = fuse_traj[static_cast<std::size_t>(fuse_pose_of[i])];
-          mapper->fuse(depth, known.T_W_C);
+          const FuseStats fs = mapper->fuse(depth, known.T_W_C);
+          snapped_returns += fs.snapped_pixels;
+          fused_returns += fs.valid_pixels - fs.beyond_fuse_depth;
           st.stamp_s = source->stamp(i);
           st.tracked = true;
           st.T_W_C = known.T_W_C;
@@ -225,6 +228,8 @@ int main(int argc, char** argv) {
             // map -> odom correction instead (Mapper::processOdom: the same poses up to rounding,
             // test_map_stages).
             const MapperFrame mf = mapper->process(depth, st.T_W_C);
+            snapped_returns += mf.fuse.snapped_pixels;
+            fused_returns += mf.fuse.valid_pixels - mf.fuse.beyond_fuse_depth;
             if (mf.loop_attempted && mf.loop.accepted) {
               tracker.correctPose(mf.T_W_C);
               st.T_W_C = mf.T_W_C;
@@ -332,6 +337,11 @@ int main(int argc, char** argv) {
           options.map_path.empty() ? " (octree not flushed: no --map)" : "");
       const std::string noise_limit = vm.fuseNoiseSummary();
       if (!noise_limit.empty()) std::printf("map noise limit: %s\n", noise_limit.c_str());
+      if (vm.config().snap_cell_px > 0)
+        std::printf("map snap: %.1f %% of the returns within the fuse depth fused at their cell's "
+                    "plane (%lld of %lld)\n",
+                    fused_returns > 0 ? 100.0 * snapped_returns / fused_returns : 0.0,
+                    snapped_returns, fused_returns);
       if (map_quality) {
         const double tol = oneVoxelTolerance(vm.config().voxel_size_m);
         const sim::Scene& scene = rendered->run().scene;

@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "../simd4.hpp"
 #include "carve_walk.hpp"
 #include "depth_track/core/noise_model.hpp"
 #include "voxel_map_impl.hpp"
@@ -349,72 +350,117 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
   out.height = h;
   out.data = in.data;
   int snapped = 0;
-  // One cell's returns: pixel index, pixel ray (x, y), inverse depth, z^2.
-  constexpr int kMaxCell = 32 * 32;
-  int px[kMaxCell];
-  double xs[kMaxCell], ys[kMaxCell], ws[kMaxCell], z2[kMaxCell];
-  bool inlier[kMaxCell];
+  // A cell's pixels are read a row of four at a time (simd4 vectors); sums are kept per lane in
+  // float, over rays centred on the cell's (x, y), and added up in double.
+  using simd4::V4f;
+  using simd4::V4i;
+  const V4f zero = simd4::splat(0.0f), one = simd4::splat(1.0f), zmax4 = simd4::splat(z_max);
+  struct LaneMoments {
+    V4f n{}, sx{}, sy{}, sw{}, sxx{}, sxy{}, syy{}, sxw{}, syw{};
+    // m: 1 for a return, 0 for none; iz: inverse depth, 0 where m is.
+    void add(V4f m, V4f x, V4f y, V4f iz) {
+      const V4f mx = m * x, my = m * y;
+      n += m, sx += mx, sy += my, sw += iz;
+      sxx += mx * x, sxy += mx * y, syy += my * y, sxw += x * iz, syw += y * iz;
+    }
+    Moments total() const {
+      Moments t;
+      for (int k = 0; k < 4; ++k) {
+        t.n += n[k], t.sx += sx[k], t.sy += sy[k], t.sw += sw[k], t.sxx += sxx[k];
+        t.sxy += sxy[k], t.syy += syy[k], t.sxw += sxw[k], t.syw += syw[k];
+      }
+      return t;
+    }
+  };
+  // Four pixels of `row` from column u (u1: the cell's end): depth (1 where no return), 1/0 for
+  // a return, inverse depth (0 where no return), centred ray x.
+  auto lanes = [&](const float* row, int u, int u1, V4f xc, V4f& z, V4f& m, V4f& iz, V4f& x) {
+    z = simd4::load4OrZero(row, u, u1);
+    x = simd4::load4OrZero(xu, u, u1) - xc;  // (beyond u1 -xc: finite, and z = 0 there)
+    const V4i ok = (z > zero) & (z <= zmax4);  // false for NaN
+    m = ok ? one : zero;
+    z = ok ? z : one;
+    iz = m / z;
+  };
+  // Puts back the returns of the cell [u0, u1) x [v0, v1) as measured.
+  auto restore = [&](int u0, int v0, int u1, int v1) {
+    for (int v = v0; v < v1; ++v) {
+      const std::size_t r = static_cast<std::size_t>(v) * w;
+      std::copy(in.data.begin() + r + u0, in.data.begin() + r + u1, out.data.begin() + r + u0);
+    }
+  };
   // Snaps the cell [u0, u0 + size) x [v0, v0 + size) when it is planar; false when it is not.
   auto snapCell = [&](int u0, int v0, int size) {
     const int u1 = std::min(w, u0 + size), v1 = std::min(h, v0 + size);
     const int min_valid = std::max(6, size * size / 4);
-    // The returns and the moments of the fit, gathered in one pass.
-    Moments all;
-    int n = 0;
-    double zsum = 0.0;
+    const float xc1 = 0.5f * (xu[u0] + xu[u1 - 1]), yc = 0.5f * (yv[v0] + yv[v1 - 1]);
+    const V4f xc = simd4::splat(xc1);
+    V4f z, m, iz, x;
+    LaneMoments lm;
+    V4f zsum = zero;
     for (int v = v0; v < v1; ++v) {
       const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
-      const double y = yv[v];
-      for (int u = u0; u < u1; ++u) {
-        const float z = row[u];
-        if (!(z > 0.0f) || !(z <= z_max)) continue;
-        const double x = xu[u], iz = 1.0 / z;
-        px[n] = v * w + u;
-        xs[n] = x, ys[n] = y, ws[n] = iz, z2[n] = double{z} * z;
-        all.add(x, y, iz);
-        zsum += z;
-        ++n;
+      const V4f y = simd4::splat(yv[v] - yc);
+      for (int u = u0; u < u1; u += 4) {
+        lanes(row, u, u1, xc, z, m, iz, x);
+        lm.add(m, x, y, iz);
+        zsum += m * z;
       }
     }
+    const Moments all = lm.total();
+    const double n = all.n;
     if (n < min_valid) return false;
-    const double sigma = noise.sigmaAt(zsum / n);
+    const double sigma =
+        noise.sigmaAt((double{zsum[0]} + zsum[1] + zsum[2] + zsum[3]) / n);
     if (!(sigma > 0.0)) return false;
-    const double gate = kInlierSigmas * sigma;
+    const V4f gate = simd4::splat(static_cast<float>(kInlierSigmas * sigma)), neg_gate = -gate;
     // Fit w = a + b x + c y, judge every return against the plane, and fit again without the
     // returns more than kInlierSigmas off it (another surface in the cell, or a stray return):
     // their moments are taken off the totals.
     Moments fit = all;
-    Plane pl;
-    int n_in = n;
-    double ss = 0.0;
+    double n_in = 0.0, ss = 0.0;
     for (int pass = 0; pass < 2; ++pass) {
-      if (!fit.solve(&pl)) return false;
-      Moments out_of_plane;
-      n_in = 0;
-      ss = 0.0;
-      for (int k = 0; k < n; ++k) {
-        const double e = (ws[k] - pl.at(xs[k], ys[k])) * z2[k];
-        inlier[k] = std::abs(e) <= gate;
-        if (inlier[k]) {
-          ++n_in;
-          ss += e * e;
-        } else {
-          out_of_plane.add(xs[k], ys[k], ws[k]);
+      Plane pl;
+      if (!fit.solve(&pl)) {
+        if (pass > 0) restore(u0, v0, u1, v1);
+        return false;
+      }
+      const V4f a = simd4::splat(static_cast<float>(pl.a)),
+                b = simd4::splat(static_cast<float>(pl.b)),
+                c = simd4::splat(static_cast<float>(pl.c));
+      LaneMoments off;
+      V4f in_n = zero, in_ss = zero;
+      for (int v = v0; v < v1; ++v) {
+        const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+        const V4f y = simd4::splat(yv[v] - yc);
+        float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
+        for (int u = u0; u < u1; u += 4) {
+          lanes(row, u, u1, xc, z, m, iz, x);
+          const V4f f = a + b * x + c * y;
+          const V4f e = (iz - f) * z * z;
+          const V4i ok = (m > zero) & (e <= gate) & (e >= neg_gate) & (f > zero);
+          const V4f on = ok ? one : zero, off_m = m - on;
+          in_n += on;
+          in_ss += on * e * e;
+          off.add(off_m, x, y, off_m * iz);
+          // The cell's output is written as it is judged (taken back below if it is not one plane).
+          const V4f snapped_z = ok ? one / (ok ? f : one) : simd4::load4OrZero(row, u, u1);
+          simd4::store4(dst, u, u1, snapped_z);
         }
       }
-      if (n_in < min_valid || 2 * n_in < n) return false;
+      n_in = double{in_n[0]} + in_n[1] + in_n[2] + in_n[3];
+      ss = double{in_ss[0]} + in_ss[1] + in_ss[2] + in_ss[3];
+      if (n_in < min_valid || 2.0 * n_in < n) break;
       if (n_in == n || pass == 1) break;  // no return left out: a second fit would be the same
       fit = all;
-      fit.remove(out_of_plane);
+      fit.remove(off.total());
     }
-    if (ss > kPlanarRms * kPlanarRms * sigma * sigma * n_in) return false;
-    for (int k = 0; k < n; ++k) {
-      if (!inlier[k]) continue;
-      const double wfit = pl.at(xs[k], ys[k]);
-      if (!(wfit > 0.0)) continue;
-      out.data[px[k]] = static_cast<float>(1.0 / wfit);
-      ++snapped;
+    if (n_in < min_valid || 2.0 * n_in < n ||
+        ss > kPlanarRms * kPlanarRms * sigma * sigma * n_in) {
+      restore(u0, v0, u1, v1);
+      return false;
     }
+    snapped += static_cast<int>(n_in);
     return true;
   };
   // Cell sizes: a cell is fitted at the smallest size whose plane is known to half a voxel (the
@@ -426,17 +472,26 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
   // mean depth come without reading its pixels.
   constexpr int kMinCell = 4;
   const int bw = (w + kMinCell - 1) / kMinCell, bh = (h + kMinCell - 1) / kMinCell;
-  std::vector<int> bn(static_cast<std::size_t>(bw) * bh, 0);
-  std::vector<double> bz(bn.size(), 0.0);
-  for (int v = 0; v < h; ++v) {
-    const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
-    int* nrow = bn.data() + static_cast<std::size_t>(v / kMinCell) * bw;
-    double* zrow = bz.data() + static_cast<std::size_t>(v / kMinCell) * bw;
-    for (int u = 0; u < w; ++u) {
-      const float z = row[u];
-      if (!(z > 0.0f) || !(z <= z_max)) continue;
-      ++nrow[u / kMinCell];
-      zrow[u / kMinCell] += z;
+  static_assert(kMinCell == 4, "a block row is one simd4 vector");
+  std::vector<float> bn(static_cast<std::size_t>(bw) * bh, 0.0f), bz(bn.size(), 0.0f);
+  std::vector<V4f> lane_n(bw), lane_z(bw);  // one block row's per-lane sums
+  for (int by = 0; by < bh; ++by) {
+    std::fill(lane_n.begin(), lane_n.end(), zero);
+    std::fill(lane_z.begin(), lane_z.end(), zero);
+    for (int v = by * kMinCell; v < std::min(h, (by + 1) * kMinCell); ++v) {
+      const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+      for (int bx = 0; bx < bw; ++bx) {
+        const V4f z = simd4::load4OrZero(row, bx * kMinCell, w);
+        const V4i ok = (z > zero) & (z <= zmax4);
+        lane_n[bx] += ok ? one : zero;
+        lane_z[bx] += ok ? z : zero;
+      }
+    }
+    for (int bx = 0; bx < bw; ++bx) {
+      const V4f& ln = lane_n[bx];
+      const V4f& lz = lane_z[bx];
+      bn[static_cast<std::size_t>(by) * bw + bx] = ln[0] + ln[1] + ln[2] + ln[3];
+      bz[static_cast<std::size_t>(by) * bw + bx] = lz[0] + lz[1] + lz[2] + lz[3];
     }
   }
   const double inv_voxel = 1.0 / voxel_m;
@@ -444,8 +499,7 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     if (u0 >= w || v0 >= h) return;
     const int half = size / 2;
     if (half >= kMinCell) {
-      int n = 0;
-      double zsum = 0.0;
+      double n = 0.0, zsum = 0.0;
       for (int by = v0 / kMinCell; by < std::min(bh, (v0 + size) / kMinCell); ++by)
         for (int bx = u0 / kMinCell; bx < std::min(bw, (u0 + size) / kMinCell); ++bx) {
           n += bn[static_cast<std::size_t>(by) * bw + bx];
