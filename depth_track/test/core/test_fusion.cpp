@@ -524,6 +524,24 @@ TEST(Fusion, SnapCellFusesEachPlanarCellAtItsPlane) {
   // and the step is not bridged by more than the raw frames bridge it.
   EXPECT_GT(snapped.on_box, raw.on_box / 2);
   EXPECT_LE(snapped.between, raw.between);
+  // Pixels without a return (0, negative, NaN, infinite) inside planar cells stay without one:
+  // the returns counted are those of the frame as given.
+  MapConfig with_holes = unboundedConfig(0.005, UpdateModel::kProbabilistic);
+  with_holes.max_fuse_noise_voxels = 0.0;  // no depth limit, which would leave +inf out anyway
+  VoxelMap holes(with_holes);
+  holes.fuse(frame(11), kK, Eigen::Isometry3d::Identity());  // measures the noise
+  DepthImage d = frame(12);
+  int returns = 0;
+  for (std::size_t i = 0; i < d.data.size(); ++i) {
+    if (i % 7 == 3) d.data[i] = std::numeric_limits<float>::infinity();
+    if (i % 7 == 5) d.data[i] = std::numeric_limits<float>::quiet_NaN();
+    if (i % 11 == 1) d.data[i] = -1.0f;
+    returns += d.data[i] > 0.0f && std::isfinite(d.data[i]);
+  }
+  const FuseStats holed = holes.fuse(d, kK, Eigen::Isometry3d::Identity());
+  EXPECT_EQ(holed.valid_pixels, returns);
+  EXPECT_GT(holed.snapped_pixels, returns / 2);
+  EXPECT_LE(holed.snapped_pixels, returns);
   // Until the noise is known nothing is snapped: a wall square on cannot tell how the noise
   // grows with depth.
   MapConfig cfg = unboundedConfig(0.005, UpdateModel::kProbabilistic);

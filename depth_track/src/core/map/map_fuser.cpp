@@ -354,7 +354,9 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
   // float, over rays centred on the cell's (x, y), and added up in double.
   using simd4::V4f;
   using simd4::V4i;
-  const V4f zero = simd4::splat(0.0f), one = simd4::splat(1.0f), zmax4 = simd4::splat(z_max);
+  // A return is positive and finite (as in the hit pass), and up to z_max.
+  const V4f zero = simd4::splat(0.0f), one = simd4::splat(1.0f),
+            zmax4 = simd4::splat(std::min(z_max, std::numeric_limits<float>::max()));
   struct LaneMoments {
     V4f n{}, sx{}, sy{}, sw{}, sxx{}, sxy{}, syy{}, sxw{}, syw{};
     // m: 1 for a return, 0 for none; iz: inverse depth, 0 where m is.
