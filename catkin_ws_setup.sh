@@ -53,6 +53,8 @@ PACKAGES=(
   python3-numpy python3-scipy python3-matplotlib
   # peer libraries of the side-by-side benchmark (depth_track/bench/peers; built when present)
   libopen3d-dev libpcl-dev
+  # headless rviz screenshots (bags/rviz_screenshot.sh: virtual X server, screen grab, PNG)
+  xvfb x11-apps imagemagick
 )
 
 if [ "$INSTALL" = 1 ]; then
