@@ -214,7 +214,7 @@ int main(int argc, char** argv) {
           const StampedPose& known = fuse_traj[static_cast<std::size_t>(fuse_pose_of[i])];
           const FuseStats fs = mapper->fuse(depth, known.T_W_C);
           snapped_returns += fs.snapped_pixels;
-          fused_returns += fs.valid_pixels - fs.beyond_fuse_depth;
+          fused_returns += fs.returnsWithinFuseDepth();
           st.stamp_s = source->stamp(i);
           st.tracked = true;
           st.T_W_C = known.T_W_C;
@@ -229,7 +229,7 @@ int main(int argc, char** argv) {
             // test_map_stages).
             const MapperFrame mf = mapper->process(depth, st.T_W_C);
             snapped_returns += mf.fuse.snapped_pixels;
-            fused_returns += mf.fuse.valid_pixels - mf.fuse.beyond_fuse_depth;
+            fused_returns += mf.fuse.returnsWithinFuseDepth();
             if (mf.loop_attempted && mf.loop.accepted) {
               tracker.correctPose(mf.T_W_C);
               st.T_W_C = mf.T_W_C;

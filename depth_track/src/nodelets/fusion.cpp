@@ -107,7 +107,7 @@ class FusionNodelet : public nodelet::Nodelet {
     d.add("frames not fused (not tracked)", not_fused_.load());
     d.add("publications", publications_.load());
     d.addf("fuse depth limit (m, 0 = none)", "%.2f", fuse_depth_limit_m_.load());
-    d.addf("returns fused at their cell's plane (last frame, %)", "%.1f",
+    d.addf("returns within the fuse depth fused at their cell's plane (last frame, %)", "%.1f",
            snapped_percent_.load());
     d.addf("since last publication (s)", "%.1f", last_publish_wall_s_ > 0 ? since : -1.0);
   }
@@ -137,7 +137,8 @@ class FusionNodelet : public nodelet::Nodelet {
           fuser_.over(map, K, [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); });
       const FuseStats fs = fuser.fuse(depth, T_map_C);
       fuse_depth_limit_m_ = fs.fuse_depth_limit_m;
-      snapped_percent_ = fs.valid_pixels > 0 ? 100.0 * fs.snapped_pixels / fs.valid_pixels : 0.0;
+      const int considered = fs.returnsWithinFuseDepth();
+      snapped_percent_ = considered > 0 ? 100.0 * fs.snapped_pixels / considered : 0.0;
       // The noise limit (max_fuse_noise) is measured on the map's first frames (ms_noise > 0):
       // say once what it measured and what it leaves out.
       if (fs.ms_noise > 0.0) {

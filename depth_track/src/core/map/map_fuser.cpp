@@ -307,14 +307,9 @@ NoiseLimit measureNoiseLimit(const DepthImage& depth, const PinholeIntrinsics& i
 // Least-squares moments of inverse depth w over the pixel ray (x, y), for snapToCellPlanes.
 struct Plane {
   double a = 0.0, b = 0.0, c = 0.0;  // w = a + b x + c y
-  double at(double x, double y) const { return a + b * x + c * y; }
 };
 struct Moments {
   double n = 0, sx = 0, sy = 0, sw = 0, sxx = 0, sxy = 0, syy = 0, sxw = 0, syw = 0;
-  void add(double x, double y, double w) {
-    n += 1.0, sx += x, sy += y, sw += w;
-    sxx += x * x, sxy += x * y, syy += y * y, sxw += x * w, syw += y * w;
-  }
   void remove(const Moments& o) {
     n -= o.n, sx -= o.sx, sy -= o.sy, sw -= o.sw;
     sxx -= o.sxx, sxy -= o.sxy, syy -= o.syy, sxw -= o.sxw, syw -= o.syw;
@@ -418,14 +413,16 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     const V4f gate = simd4::splat(static_cast<float>(kInlierSigmas * sigma)), neg_gate = -gate;
     // Fit w = a + b x + c y, judge every return against the plane, and fit again without the
     // returns more than kInlierSigmas off it (another surface in the cell, or a stray return):
-    // their moments are taken off the totals.
+    // their moments are taken off the totals. Each judging pass writes the cell's output, which
+    // is taken back when the cell is not one plane.
     Moments fit = all;
     double n_in = 0.0, ss = 0.0;
+    bool written = false, planar = false;
     for (int pass = 0; pass < 2; ++pass) {
       Plane pl;
       if (!fit.solve(&pl)) {
-        if (pass > 0) restore(u0, v0, u1, v1);
-        return false;
+        planar = false;
+        break;
       }
       const V4f a = simd4::splat(static_cast<float>(pl.a)),
                 b = simd4::splat(static_cast<float>(pl.b)),
@@ -445,21 +442,21 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
           in_n += on;
           in_ss += on * e * e;
           off.add(off_m, x, y, off_m * iz);
-          // The cell's output is written as it is judged (taken back below if it is not one plane).
+          // 1 / f only where f > 0 (ok); the other lanes keep the frame's value.
           const V4f snapped_z = ok ? one / (ok ? f : one) : simd4::load4OrZero(row, u, u1);
           simd4::store4(dst, u, u1, snapped_z);
         }
       }
+      written = true;
       n_in = double{in_n[0]} + in_n[1] + in_n[2] + in_n[3];
       ss = double{in_ss[0]} + in_ss[1] + in_ss[2] + in_ss[3];
-      if (n_in < min_valid || 2.0 * n_in < n) break;
-      if (n_in == n || pass == 1) break;  // no return left out: a second fit would be the same
+      planar = n_in >= min_valid && 2.0 * n_in >= n;
+      if (!planar || n_in == n) break;  // none left out: a second fit would be the same
       fit = all;
       fit.remove(off.total());
     }
-    if (n_in < min_valid || 2.0 * n_in < n ||
-        ss > kPlanarRms * kPlanarRms * sigma * sigma * n_in) {
-      restore(u0, v0, u1, v1);
+    if (!planar || ss > kPlanarRms * kPlanarRms * sigma * sigma * n_in) {
+      if (written) restore(u0, v0, u1, v1);
       return false;
     }
     snapped += static_cast<int>(n_in);

@@ -118,6 +118,8 @@ struct FuseStats {
   /// metres; 0 = none.
   double fuse_depth_limit_m = 0.0;
   int snapped_pixels = 0;     ///< returns fused at their cell's plane (MapConfig::snap_cell_px)
+  /// Returns within the fuse depth limit (those fusion considered, snapping included).
+  int returnsWithinFuseDepth() const { return valid_pixels - beyond_fuse_depth; }
   int hit_updates = 0;        ///< voxels updated as hit
   int miss_updates = 0;       ///< voxels updated as miss (carving)
   int carve_rays = 0;         ///< rays walked for carving
