@@ -55,14 +55,9 @@ double medianPeriod(const std::vector<Sample>& s) {
   return medianInterval(d);
 }
 
-/// Planar truck state integrated from the RC stream (rear axle, heading counter-clockwise).
-struct TruckDeadReckoning {
-  double x = 0.0, y = 0.0, heading = 0.0, speed = 0.0, steer = 0.0, t = 0.0;
-};
-
 // Advances `s` to time t_end with the demands held (zero-order hold, the board's own rule):
 // exact first-order lags, the arc integrated in steps of at most 1 ms (midpoint heading).
-void advanceTruck(TruckDeadReckoning& s, double t_end, double speed_dem, double steer_dem,
+void advanceTruck(TruckOdometry::State& s, double t_end, double speed_dem, double steer_dem,
                   const TruckGeometry& g) {
   constexpr double kStep = 1e-3;
   while (s.t < t_end) {
@@ -82,6 +77,18 @@ void advanceTruck(TruckDeadReckoning& s, double t_end, double speed_dem, double 
     s.steer = d1;
     s.t += h;
   }
+}
+
+Eigen::Isometry3d truckBasePose(const TruckOdometry::State& s) {
+  Eigen::Isometry3d T_W_B = Eigen::Isometry3d::Identity();
+  T_W_B.linear() = Eigen::AngleAxisd(s.heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T_W_B.translation() = Eigen::Vector3d(s.x, s.y, 0.0);
+  return T_W_B;
+}
+
+// Steering +1 is full right; the bicycle's wheel angle is positive to the left.
+double wheelAngle(const TruckRcSample& s, const TruckGeometry& g) {
+  return -std::clamp(s.steering, -1.0, 1.0) * g.max_steer_deg * kDegToRad;
 }
 
 }  // namespace
@@ -205,15 +212,12 @@ Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<d
   for (const auto& s : rc)
     if (!std::isfinite(s.speed_mps) || !std::isfinite(s.steering))
       throw std::invalid_argument("truck_rc: speed or steering not finite");
-  // Steering +1 is full right; the bicycle's wheel angle is positive to the left.
-  const auto wheel = [&g](const TruckRcSample& s) {
-    return -std::clamp(s.steering, -1.0, 1.0) * g.max_steer_deg * kDegToRad;
-  };
+  const auto wheel = [&g](const TruckRcSample& s) { return wheelAngle(s, g); };
   std::vector<std::size_t> order(stamps_s.size());
   std::iota(order.begin(), order.end(), 0);
   std::stable_sort(order.begin(), order.end(),
                    [&](std::size_t a, std::size_t b) { return stamps_s[a] < stamps_s[b]; });
-  TruckDeadReckoning state;
+  TruckOdometry::State state;
   state.t = rc.front().stamp_s;
   state.speed = rc.front().speed_mps;  // the lags start settled on the first demands
   state.steer = wheel(rc.front());
@@ -227,14 +231,81 @@ Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<d
       ++k;
     }
     advanceTruck(state, ts, rc[k].speed_mps, wheel(rc[k]), g);
-    Eigen::Isometry3d T_W_B = Eigen::Isometry3d::Identity();
-    T_W_B.linear() = Eigen::AngleAxisd(state.heading, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    T_W_B.translation() = Eigen::Vector3d(state.x, state.y, 0.0);
-    poses[q] = T_W_B * g.T_B_C;
+    poses[q] = truckBasePose(state) * g.T_B_C;
   }
   for (std::size_t i = 0; i < stamps_s.size(); ++i)
     if (poses[i]) out.push_back({stamps_s[i], *poses[i]});
   return out;
+}
+
+TruckOdometry::TruckOdometry(const TruckGeometry& geometry) : g_(geometry) {
+  const auto problems = g_.validate();
+  if (!problems.empty())
+    throw std::invalid_argument("invalid TruckGeometry: " + joinProblems(problems));
+}
+
+Eigen::Isometry3d TruckOdometry::add(const TruckRcSample& r) {
+  if (!std::isfinite(r.stamp_s) || !std::isfinite(r.speed_mps) || !std::isfinite(r.steering))
+    throw std::invalid_argument("truck_rc: stamp, speed or steering not finite");
+  if (readings_ == 0) {
+    state_.t = r.stamp_s;
+    state_.speed = r.speed_mps;  // the lags start settled on the first demands
+    state_.steer = wheelAngle(r, g_);
+  } else if (r.stamp_s < state_.t) {
+    throw std::invalid_argument("truck_rc: stamp " + std::to_string(r.stamp_s) +
+                                " s goes back in time (last " + std::to_string(state_.t) + " s)");
+  } else {
+    advanceTruck(state_, r.stamp_s, last_.speed_mps, wheelAngle(last_, g_), g_);
+  }
+  last_ = r;
+  ++readings_;
+  return truckBasePose(state_);
+}
+
+SensorMotionPrior::SensorMotionPrior(RigSensorStreams streams, const RigGeometry& geometry)
+    : streams_(std::move(streams)), geometry_(geometry) {
+  // Every check sensorTrajectory makes, once, before the first frame.
+  if (!streams_.hasServoTrack() && !streams_.hasServoTruck())
+    throw std::invalid_argument(
+        "sensor motion prior: no sensor stream (need track_state + carriage_sensors, or "
+        "truck_rc)");
+  const double first = streams_.hasServoTrack() ? streams_.track.front().stamp_s
+                                                : streams_.truck.front().stamp_s;
+  sensorTrajectory(streams_, {first}, geometry_);
+  if (!streams_.hasServoTrack()) truck_.emplace(geometry_.truck);
+}
+
+std::optional<Eigen::Isometry3d> SensorMotionPrior::cameraPose(double stamp_s) {
+  if (!truck_) {
+    const Trajectory at = sensorTrajectory(streams_, {stamp_s}, geometry_);
+    if (at.empty()) return std::nullopt;
+    return at.front().T_W_C;
+  }
+  // The base poses at the readings on either side, interpolated as tf2 interpolates the graph's
+  // odometry tf (rig_odometry publishes one per reading), so that the graph's prior is this one.
+  const auto& rc = streams_.truck;
+  if (!(stamp_s >= rc.front().stamp_s) || !(stamp_s <= rc.back().stamp_s)) return std::nullopt;
+  while (fed_ == 0 || (fed_ < rc.size() && rc[fed_ - 1].stamp_s < stamp_s)) {
+    before_ = after_;
+    after_ = truck_->add(rc[fed_++]);
+  }
+  const double t1 = rc[fed_ - 1].stamp_s;
+  const double t0 = fed_ >= 2 ? rc[fed_ - 2].stamp_s : t1;
+  const double f = t1 > t0 ? (stamp_s - t0) / (t1 - t0) : 1.0;
+  return interpolatePose(before_, after_, f) * geometry_.truck.T_B_C;
+}
+
+std::optional<Eigen::Isometry3d> SensorMotionPrior::next(double stamp_s) {
+  if (!(stamp_s > last_stamp_s_))
+    throw std::invalid_argument("sensor motion prior: frame stamp " + std::to_string(stamp_s) +
+                                " s is not after the last (" + std::to_string(last_stamp_s_) +
+                                " s)");
+  last_stamp_s_ = stamp_s;
+  const std::optional<Eigen::Isometry3d> T_W_C = cameraPose(stamp_s);
+  std::optional<Eigen::Isometry3d> motion;
+  if (T_W_C && last_T_W_C_) motion = last_T_W_C_->inverse() * *T_W_C;
+  last_T_W_C_ = T_W_C;
+  return motion;
 }
 
 }  // namespace depth_track

@@ -317,6 +317,12 @@ int main(int argc, char** argv) {
   app.add_option("--truck-steer-lag", geometry.truck.steer_lag_s,
                  "ServoTruck steering lag behind CH2 (time constant), s")
       ->capture_default_str();
+  std::string motion_prior = "none";
+  app.add_option("--motion-prior", motion_prior,
+                 "the tracker's motion guess: none (constant velocity) | sensors (the rig's "
+                 "sensors' motion between frames, as the graph's ~guess_frame)")
+      ->check(CLI::IsMember({"none", "sensors"}))
+      ->capture_default_str();
   tool_options::TrackingOptions options;
   tool_options::addTrackingOptions(app, options);
   CLI11_PARSE(app, argc, argv);
@@ -523,6 +529,19 @@ int main(int argc, char** argv) {
     else
       report.line("  start pose    identity (no camera mount in /tf_static)");
     Tracker tracker(K, config, T_W_C0);
+    // --motion-prior sensors: the rig's sensors' motion between frames replaces the constant-
+    // velocity guess, as the graph's ~guess_frame does from tf (a wheel odometry).
+    std::optional<SensorMotionPrior> sensor_prior;
+    std::size_t frames_with_prior = 0;
+    if (motion_prior == "sensors") {
+      if (!refs.sensors.hasServoTrack() && !refs.sensors.hasServoTruck())
+        throw std::invalid_argument(
+            "--motion-prior sensors: the bag has no rig sensor stream (track_state + "
+            "carriage_sensors, or truck_rc)");
+      sensor_prior.emplace(refs.sensors, refs.geometry);
+      report.line("  motion prior  the rig's sensors (" + refs.sensors.describe() +
+                  "): their motion between frames is the tracker's guess");
+    }
     std::unique_ptr<Mapper> mapper;
     if (options.mapWanted() || plots)
       mapper = std::make_unique<Mapper>(K, options.mapperConfig(), tracker.pose());
@@ -573,7 +592,12 @@ int main(int argc, char** argv) {
           applyDepthCorrection(depth, correction);
           f.ms_decode = msSince(t0);
           const double cpu0 = cpuMs();
-          const FrameStatus st = tracker.track(depth, stamp);
+          std::optional<Eigen::Isometry3d> prior;
+          if (sensor_prior) {
+            prior = sensor_prior->next(stamp);
+            if (prior) ++frames_with_prior;
+          }
+          const FrameStatus st = tracker.track(depth, stamp, prior);
           f.tracked = st.tracked;
           f.failure = st.failure;
           f.cells = st.cells, f.matches = st.matches, f.fm_matches = st.fm_matches;
@@ -623,6 +647,10 @@ int main(int argc, char** argv) {
               "%zu frames before it; if the bag was cut short, `rosbag reindex %s` "
               "recovers its complete chunks",
               message, read_error.c_str(), frames.size(), bag_path.c_str()));
+    if (sensor_prior)
+      report.line(fmt("motion prior: the sensors' motion guided %zu of %zu frames (the others, the "
+                      "first and any outside the sensor streams, the constant-velocity guess)",
+                      frames_with_prior, frames.size()));
     if (out_of_order > 0)
       report.line(
           fmt("note: %zu frames skipped because their stamps go back in time (first: "

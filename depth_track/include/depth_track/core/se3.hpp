@@ -58,4 +58,15 @@ inline Eigen::Isometry3d orthonormalized(const Eigen::Isometry3d& T) {
   return out;
 }
 
+/// The pose a share f in [0, 1] of the way from a to b: position linear, rotation slerp (as tf2
+/// interpolates between two stamped transforms).
+inline Eigen::Isometry3d interpolatePose(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b,
+                                         double f) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() =
+      Eigen::Quaterniond(a.linear()).slerp(f, Eigen::Quaterniond(b.linear())).toRotationMatrix();
+  T.translation() = (1.0 - f) * a.translation() + f * b.translation();
+  return T;
+}
+
 }  // namespace depth_track

@@ -12,6 +12,7 @@
 /// horizontal.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -124,5 +125,59 @@ struct RigSensorStreams {
 /// Thread-safe.
 Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<double>& stamps_s,
                             const RigGeometry& geometry, double shift_s = 0.0);
+
+/// The ServoTruck's dead reckoning one TruckDRV reading at a time, as a live odometry source
+/// (wheel odometry for the tracker's motion prior): the same bicycle model and lags as
+/// sensorTrajectory, base_link poses T_W_B with W = base_link at the first reading.
+class TruckOdometry {
+ public:
+  /// Throws std::invalid_argument listing the geometry's problems.
+  explicit TruckOdometry(const TruckGeometry& geometry);
+  /// Adds the next reading and returns T_W_B at its stamp (the previous reading's demands held
+  /// until then; the first reading starts the lags settled on its demands). Throws
+  /// std::invalid_argument for a non-finite value or a stamp before the last reading's; the
+  /// odometry is then unchanged.
+  Eigen::Isometry3d add(const TruckRcSample& reading);
+  /// Readings added.
+  std::size_t readings() const { return readings_; }
+
+  /// Planar state: rear axle position and heading (counter-clockwise) in W, the lagged speed and
+  /// wheel angle, and its time.
+  struct State {
+    double x = 0.0, y = 0.0, heading = 0.0, speed = 0.0, steer = 0.0, t = 0.0;
+  };
+
+ private:
+  TruckGeometry g_;
+  State state_;
+  TruckRcSample last_;
+  std::size_t readings_ = 0;
+};
+
+/// The rigs' sensors as a motion prior for Tracker::track (what the graph's ~guess_frame takes
+/// from tf, for offline runs): the camera's motion T_Cprev_Ccur between consecutive frames as the
+/// sensors see it. ServoTrack: track position and gimbal angles interpolated (sensorTrajectory);
+/// ServoTruck: TruckOdometry's poses at the readings either side of each frame, interpolated
+/// (position linear, rotation slerp) as tf2 interpolates the graph's rig_odometry tf.
+class SensorMotionPrior {
+ public:
+  /// Throws std::invalid_argument when there is no stream, a stream is out of order or not
+  /// finite, or the geometry is invalid (as sensorTrajectory).
+  SensorMotionPrior(RigSensorStreams streams, const RigGeometry& geometry);
+  /// The motion from the previous call's stamp to stamp_s (increasing); nullopt on the first
+  /// call, after a stamp the streams do not cover, and for such a stamp.
+  std::optional<Eigen::Isometry3d> next(double stamp_s);
+
+ private:
+  RigSensorStreams streams_;
+  RigGeometry geometry_;
+  std::optional<TruckOdometry> truck_;
+  std::size_t fed_ = 0;  // truck readings given to truck_
+  Eigen::Isometry3d before_ = Eigen::Isometry3d::Identity(),  // T_W_B at readings fed_ - 2, - 1
+      after_ = Eigen::Isometry3d::Identity();
+  std::optional<Eigen::Isometry3d> last_T_W_C_;
+  double last_stamp_s_ = -1e300;
+  std::optional<Eigen::Isometry3d> cameraPose(double stamp_s);
+};
 
 }  // namespace depth_track

@@ -1,3 +1,4 @@
+#include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 
 #include <algorithm>
@@ -203,13 +204,7 @@ RenderedRun makeTruckRun(const TruckRunSpec& spec, const Scene& scene) {
     const double x = std::clamp(t / dt, 0.0, static_cast<double>(poses.size() - 1));
     const std::size_t a = static_cast<std::size_t>(std::floor(x));
     const std::size_t b = std::min(a + 1, poses.size() - 1);
-    const double f = x - static_cast<double>(a);
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = Eigen::Quaterniond(poses[a].linear())
-                     .slerp(f, Eigen::Quaterniond(poses[b].linear()))
-                     .toRotationMatrix();
-    T.translation() = (1.0 - f) * poses[a].translation() + f * poses[b].translation();
-    return T;
+    return interpolatePose(poses[a], poses[b], x - static_cast<double>(a));
   };
   return run;
 }
