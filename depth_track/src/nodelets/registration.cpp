@@ -65,6 +65,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     base_frame_ = r.getString("base_frame");
     map_frame_ = r.getString("map_frame");
     guess_frame_ = r.getString("guess_frame");
+    guess_child_frame_ = r.getString("guess_child_frame");
+    if (guess_child_frame_.empty()) guess_child_frame_ = base_frame_;
     guess_timeout_s_ = r.getDouble("guess_timeout");
     static_tf_timeout_s_ = r.getDouble("static_tf_timeout");
     publish_tf_ = r.getBool("publish_tf");
@@ -155,7 +157,9 @@ class RegistrationNodelet : public nodelet::Nodelet {
     NODELET_INFO("registration: %s, %s -> %s, method %s%s",
                  mode == Mode::kReplay ? "replay" : "live", odom_frame_.c_str(),
                  base_frame_.c_str(), toString(config_.registration.method).c_str(),
-                 guess_frame_.empty() ? "" : (", prior from tf " + guess_frame_).c_str());
+                 guess_frame_.empty()
+                     ? ""
+                     : (", prior from tf " + guess_frame_ + " -> " + guess_child_frame_).c_str());
   }
 
   void onInfo(const sensor_msgs::CameraInfoConstPtr& info) {
@@ -295,10 +299,10 @@ class RegistrationNodelet : public nodelet::Nodelet {
     try {
       // Waited for in wall time: tf2's own timeout runs on the bag's clock, which stops with it.
       const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(guess_timeout_s_);
-      while (!tf_buffer_->canTransform(guess_frame_, base_frame_, stamp) &&
+      while (!tf_buffer_->canTransform(guess_frame_, guess_child_frame_, stamp) &&
              ros::WallTime::now() < deadline)
         ros::WallDuration(0.002).sleep();
-      const auto t = tf_buffer_->lookupTransform(guess_frame_, base_frame_, stamp);
+      const auto t = tf_buffer_->lookupTransform(guess_frame_, guess_child_frame_, stamp);
       const Eigen::Isometry3d T_g_base = conv::fromTransformMsg(t.transform);
       std::optional<Eigen::Isometry3d> out;
       if (have_guess_)  // camera motion T_Cprev_Ccur = T_C_base T_base_prev_cur T_base_C
@@ -310,7 +314,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
       NODELET_WARN_THROTTLE(5.0,
                             "registration: no motion prior from tf %s -> %s at %.3f (%s); "
                             "constant velocity instead",
-                            guess_frame_.c_str(), base_frame_.c_str(), stamp.toSec(), e.what());
+                            guess_frame_.c_str(), guess_child_frame_.c_str(), stamp.toSec(),
+                            e.what());
       have_guess_ = false;
       return std::nullopt;
     }
@@ -662,7 +667,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
   Mode mode_ = Mode::kLive;
   static constexpr double kSaveWaitS = 10.0;  ///< save_trajectory's wait for loop closure, s
   double prev_stamp_ = -1.0;  ///< stamp of the last frame tracked or lost (not rejected)
-  std::string odom_frame_, base_frame_, map_frame_, guess_frame_, camera_frame_, trajectory_path_;
+  std::string odom_frame_, base_frame_, map_frame_, guess_frame_, guess_child_frame_, camera_frame_,
+      trajectory_path_;
   double guess_timeout_s_ = 0.05, static_tf_timeout_s_ = 2.0, lost_pos_var_ = 1.0,
          lost_rot_var_ = 0.1;
   bool publish_tf_ = true, relocalise_ = true;

@@ -101,7 +101,13 @@ std::vector<NodeParamSpec> makeParams() {
   p.push_back(text("registration", "map_frame", "frame of the loop-closure corrections", "map"));
   p.push_back(text("registration", "guess_frame",
                    "fixed frame of a motion prior from tf (wheel odometry, the rig's sensors): "
-                   "the motion of base_frame in it between two frames; empty = constant velocity",
+                   "the motion of guess_child_frame in it between two frames; empty = constant "
+                   "velocity",
+                   ""));
+  p.push_back(text("registration", "guess_child_frame",
+                   "the frame that moves with the robot in guess_frame's tree: base_frame when "
+                   "empty; its own frame (rig_odometry: rig_base_link) keeps base_frame with one "
+                   "parent",
                    ""));
   p.push_back(num("registration", "guess_timeout", "s", "wait this long for the prior's tf", 0.05,
                   0.0, 10.0));

@@ -146,6 +146,9 @@ class TruckOdometry {
   struct State {
     double x = 0.0, y = 0.0, heading = 0.0, speed = 0.0, steer = 0.0, t = 0.0;
   };
+  /// The state at the last reading.
+  const State& state() const { return state_; }
+  const TruckGeometry& geometry() const { return g_; }
 
  private:
   TruckGeometry g_;
