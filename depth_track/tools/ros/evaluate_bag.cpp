@@ -124,6 +124,8 @@ struct FrameRecord {
   int cells = 0, matches = 0, fm_matches = 0, iterations = 0;
   double error_rms_m = 0.0;
   bool keyframe = false, loop_attempted = false, loop_accepted = false;
+  int held_directions = 0;  ///< directions the view did not fix, kept at the motion guess
+  bool prior = false;       ///< --motion-prior gave this frame's guess
   double ms_decode = 0, ms_prefilter = 0, ms_reduce = 0, ms_register = 0, ms_track = 0, ms_map = 0;
   double cpu_ms = 0;  ///< process CPU time of tracking + mapping (all threads)
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
@@ -158,7 +160,7 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
                           "errRy", "errRz", "errDx", "errDy", "errDz"})
       out << "," << p << "_" << c;
   out << ",icp_error_mm,cells,matches,fm_matches,iterations,keyframe,loop_attempted,loop_accepted,"
-         "ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,ms_frame,cpu_ms,failure\n";
+         "held_directions,prior,ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,ms_frame,cpu_ms,failure\n";
   // Per reference: frame index -> its row of errors.
   std::vector<std::vector<const FrameError*>> by_frame(
       run.scores.size(), std::vector<const FrameError*>(frames.size()));
@@ -192,9 +194,11 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
       out << buf;
     }
     std::snprintf(
-        buf, sizeof(buf), ",%.4f,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
+        buf, sizeof(buf),
+        ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
         1000.0 * f.error_rms_m, f.cells, f.matches, f.fm_matches, f.iterations, f.keyframe ? 1 : 0,
-        f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.ms_decode, f.ms_prefilter, f.ms_reduce,
+        f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.held_directions, f.prior ? 1 : 0,
+        f.ms_decode, f.ms_prefilter, f.ms_reduce,
         f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map, f.cpu_ms);
     out << buf << csvText(f.failure) << "\n";
   }
@@ -604,6 +608,8 @@ int main(int argc, char** argv) {
           f.iterations = st.iterations;
           f.error_rms_m = st.error_rms_m;
           f.keyframe = st.new_keyframe;
+          f.held_directions = st.degenerate_directions;
+          f.prior = prior.has_value();
           f.ms_prefilter = st.ms_prefilter, f.ms_reduce = st.ms_reduce;
           f.ms_register = st.ms_register, f.ms_track = st.ms_total;
           f.T_W_C = st.T_W_C;
