@@ -204,34 +204,23 @@ Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<d
     throw std::invalid_argument(
         "sensorTrajectory: no sensor stream (need track_state + carriage_sensors, or truck_rc)");
   const TruckGeometry& g = geometry.truck;
-  const auto problems = g.validate();
-  if (!problems.empty())
-    throw std::invalid_argument("invalid TruckGeometry: " + joinProblems(problems));
+  TruckOdometry odometry(g);  // validates the geometry
   const auto& rc = streams.truck;
   checkStream(rc, "truck_rc");
   for (const auto& s : rc)
     if (!std::isfinite(s.speed_mps) || !std::isfinite(s.steering))
       throw std::invalid_argument("truck_rc: speed or steering not finite");
-  const auto wheel = [&g](const TruckRcSample& s) { return wheelAngle(s, g); };
   std::vector<std::size_t> order(stamps_s.size());
   std::iota(order.begin(), order.end(), 0);
   std::stable_sort(order.begin(), order.end(),
                    [&](std::size_t a, std::size_t b) { return stamps_s[a] < stamps_s[b]; });
-  TruckOdometry::State state;
-  state.t = rc.front().stamp_s;
-  state.speed = rc.front().speed_mps;  // the lags start settled on the first demands
-  state.steer = wheel(rc.front());
-  std::size_t k = 0;  // the sample whose demands hold at state.t
   std::vector<std::optional<Eigen::Isometry3d>> poses(stamps_s.size());
   for (const std::size_t q : order) {
     const double ts = stamps_s[q] + shift_s;
     if (!(ts >= rc.front().stamp_s) || !(ts <= rc.back().stamp_s)) continue;
-    while (k + 1 < rc.size() && rc[k + 1].stamp_s <= ts) {
-      advanceTruck(state, rc[k + 1].stamp_s, rc[k].speed_mps, wheel(rc[k]), g);
-      ++k;
-    }
-    advanceTruck(state, ts, rc[k].speed_mps, wheel(rc[k]), g);
-    poses[q] = truckBasePose(state) * g.T_B_C;
+    while (odometry.readings() < rc.size() && rc[odometry.readings()].stamp_s <= ts)
+      odometry.add(rc[odometry.readings()]);
+    poses[q] = *odometry.predict(ts) * g.T_B_C;
   }
   for (std::size_t i = 0; i < stamps_s.size(); ++i)
     if (poses[i]) out.push_back({stamps_s[i], *poses[i]});
@@ -260,6 +249,13 @@ Eigen::Isometry3d TruckOdometry::add(const TruckRcSample& r) {
   last_ = r;
   ++readings_;
   return truckBasePose(state_);
+}
+
+std::optional<Eigen::Isometry3d> TruckOdometry::predict(double stamp_s) const {
+  if (readings_ == 0 || !(stamp_s >= state_.t)) return std::nullopt;
+  State s = state_;
+  advanceTruck(s, stamp_s, last_.speed_mps, wheelAngle(last_, g_), g_);
+  return truckBasePose(s);
 }
 
 SensorMotionPrior::SensorMotionPrior(RigSensorStreams streams, const RigGeometry& geometry)

@@ -118,17 +118,19 @@ struct RigSensorStreams {
 /// reading taken shift_s after the frame; positive = the sensor stream lags the camera).
 /// ServoTrack: track position and gimbal angles linearly interpolated, through
 /// cameraPoseOnTrack; ServoTruck (when there is no ServoTrack stream): speed integrated along the
-/// heading the steering turns (bicycle model, its lags settled on the first sample's demands;
-/// W = base_link at the first sample). A stamp outside the streams' span gets no pose. The result
+/// heading the steering turns (TruckOdometry: bicycle model, its lags settled on the first
+/// sample's demands, W = base_link at the first sample; integrated reading to reading, so a pose
+/// does not depend on which other stamps are asked for). A stamp outside the streams' span gets no pose. The result
 /// keeps the unshifted stamps, in the order given. Throws std::invalid_argument when there is no
 /// stream, a stream is not in stamp order or holds a non-finite value, or the geometry is invalid.
 /// Thread-safe.
 Trajectory sensorTrajectory(const RigSensorStreams& streams, const std::vector<double>& stamps_s,
                             const RigGeometry& geometry, double shift_s = 0.0);
 
-/// The ServoTruck's dead reckoning one TruckDRV reading at a time, as a live odometry source
-/// (wheel odometry for the tracker's motion prior): the same bicycle model and lags as
-/// sensorTrajectory, base_link poses T_W_B with W = base_link at the first reading.
+/// The ServoTruck's dead reckoning one TruckDRV reading at a time: sensorTrajectory's truck
+/// reference, and a live odometry source (wheel odometry for the tracker's motion prior,
+/// rig_odometry). A kinematic bicycle about the rear axle through the drive's and the steering's
+/// first-order lags; base_link poses T_W_B with W = base_link at the first reading.
 class TruckOdometry {
  public:
   /// Throws std::invalid_argument listing the geometry's problems.
@@ -138,6 +140,9 @@ class TruckOdometry {
   /// std::invalid_argument for a non-finite value or a stamp before the last reading's; the
   /// odometry is then unchanged.
   Eigen::Isometry3d add(const TruckRcSample& reading);
+  /// T_W_B at stamp_s, no earlier than the last reading, with its demands held (nullopt before
+  /// the first reading or for an earlier stamp); the odometry itself stays at the last reading.
+  std::optional<Eigen::Isometry3d> predict(double stamp_s) const;
   /// Readings added.
   std::size_t readings() const { return readings_; }
 
