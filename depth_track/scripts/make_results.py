@@ -15,7 +15,8 @@
    alike. Sets (--only): *default* (the defaults alone, every bag, with plots), *thesis* (the
    thesis's configurations of tables 5.3, 5.5, 5.6), *preset* (the camera presets
    config/d435.yaml and config/tum_kinect.yaml, on their own cameras' bags only, labelled as
-   such), *matrix* (method x reference x prefilter x loop closure). A run is done when its
+   such), *prior* (the ServoTruck bags with the truck's odometry as the motion prior, evaluate_bag
+   --motion-prior sensors), *matrix* (method x reference x prefilter x loop closure). A run is done when its
    report ends with the summary line and its run.json names the same command and the same
    binaries (evaluate_bag and the core libraries, by hash): a rebuilt tracker re-runs
    everything, an interrupted script picks up where it stopped. Each run's run_meta.json says
@@ -207,6 +208,11 @@ PRESETS = {"d435": ("preset_d435", "config/d435.yaml"),
            "kinect": ("preset_kinect", "config/tum_kinect.yaml")}
 
 
+# The ServoTruck bags also run with the rig's sensors as the tracker's motion prior: a robot's
+# wheel odometry, not the depth alone, so its rows are their own set and never "best".
+PRIOR_CONFIG = "p2l_adaptive_prior"
+
+
 def configs(kind, noise):
     """config name -> evaluate_bag options, for one bag. Every configuration but the preset rows
     is the tracker defaults with the configuration's options on top, whatever the camera."""
@@ -224,6 +230,8 @@ def configs(kind, noise):
         c[name] = ["--config", os.path.join(ROOT, yaml)]
     for method, key in METHODS[1:]:
         c["%s_adaptive_lc" % key] = ["--method", method, "--loop-closure", "on"] + NONE
+    if kind == "truck":  # the truck's dead reckoning as the tracker's motion prior
+        c[PRIOR_CONFIG] = ["--motion-prior", "sensors"]
     if kind == "xtest":  # table 5.3: CellX = 4
         t = {"t53_p2p_fr1": ("p2p", 1, NONE), "t53_p2l_fr1": ("p2l", 1, NONE),
              "t53_p2l_fr1_bil": ("p2l", 1, FULL), "t53_p2l_fr4": ("p2l", 4, NONE),
@@ -252,7 +260,8 @@ def describe(config):
     method, ref, extra = config.split("_")
     words = {"p2p": "P2P", "p2l": "P2L", "cs": "Cell Search"}[method]
     words += ", " + ("adaptive reference" if ref == "adaptive" else "fixed reference")
-    words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure"}[extra]
+    words += {"nopf": "", "bil": ", bilateral", "lc": ", loop closure",
+              "prior": ", the truck's odometry as motion prior (`--motion-prior sensors`)"}[extra]
     if config == DEFAULT_CONFIG:
         words = "tracker defaults (%s)" % words
     return words
@@ -344,10 +353,12 @@ def config_set(config, noise):
         return "default"
     if config.startswith("preset_"):
         return "preset"
+    if config == PRIOR_CONFIG:
+        return "prior"
     return "thesis" if config.startswith("t5") else "matrix"
 
 
-SETS = ("default", "thesis", "preset", "matrix")
+SETS = ("default", "thesis", "preset", "prior", "matrix")
 
 
 def code_state():
@@ -382,7 +393,7 @@ def run_all(bags, jobs, frames, only, plot_bags, names=None):
                 continue
             # Every bag's defaults first, then the thesis's configurations (RT and XTest1 on the
             # L515 bags, the thesis's camera, before D435), then the rest: the page is useful early.
-            rank = {"default": 0, "thesis": 1, "preset": 3, "matrix": 4}[which]
+            rank = {"default": 0, "thesis": 1, "preset": 3, "prior": 3, "matrix": 4}[which]
             if which == "thesis":
                 rank += noise == "d435"
             # Plots need the map (front and plan views), which doubles a run's cost.
@@ -753,6 +764,8 @@ def write_page(bags, args):
             "thesis": "the thesis's configurations of tables 5.3 (XTest1) and 5.5 / 5.6 (RT1-RT6)",
             "preset": "the camera presets on their cameras' bags (D435: config/d435.yaml; TUM: "
                       "config/tum_kinect.yaml)",
+            "prior": "the ServoTruck bags with the truck's odometry as the tracker's motion "
+                     "prior (`--motion-prior sensors`; not the depth alone: never *best*)",
             "matrix": "the rest of the method x reference x prefilter x loop-closure matrix"}
     now_code = code_state()
     stale = []
@@ -979,7 +992,9 @@ def write_page(bags, args):
             noise.upper(), ", the camera preset" if noise in PRESETS else ""))
         w("")
         w("Against ground truth. *Best* = lowest ATE among the configurations run for this page "
-          "that tracked every frame (see *What was run*).")
+          "that tracked every frame (see *What was run*), from the depth alone. *Sensor prior* "
+          "(ServoTruck bags): the defaults with the truck's odometry as the tracker's motion "
+          "prior, what a robot with wheel odometry has.")
         w("")
         w("| scenario | configuration | tracked | errTx | errTy | errTz | errDx | errDy | errDz | "
           "ATE m | drift mm | ms | cpu |")
@@ -994,7 +1009,7 @@ def write_page(bags, args):
                     cands.append((config, r))
             dflt = DEFAULT_CONFIG
             default = runs.get((name, dflt))
-            full = [(c, r) for c, r in cands if r["tracked"] == r["frames"]]
+            full = [(c, r) for c, r in cands if r["tracked"] == r["frames"] and c != PRIOR_CONFIG]
             best = min(full, key=lambda x: x[1]["scores"]["ground_truth"]["ate_rmse_m"]) if full else None
             items = [("default", (dflt, default) if default else None)]
             if noise in PRESETS:
@@ -1002,6 +1017,9 @@ def write_page(bags, args):
                 items.append(("preset", (pr, runs.get((name, pr))) if runs.get((name, pr))
                               else None))
             items.append(("best", best))
+            if kind == "truck":
+                items.append(("sensor prior", (PRIOR_CONFIG, runs.get((name, PRIOR_CONFIG)))
+                              if runs.get((name, PRIOR_CONFIG)) else None))
             for label, item in items:
                 if not item or not item[1]:
                     w("| %s | %s: not run | | | | | | | | | | | |" % (name, label))
