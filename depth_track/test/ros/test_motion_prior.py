@@ -22,16 +22,9 @@ import unittest
 
 import rospkg
 import rostest
-from catkin.find_in_workspaces import find_in_workspaces
+from ros_test_tools import tool
 
 FRAMES = 75
-
-
-def tool(project, name):
-    found = find_in_workspaces(["libexec"], project=project, path=name, first_match_only=True)
-    if not found:
-        raise RuntimeError("%s/%s is not built" % (project, name))
-    return found[0]
 
 
 def poses(path):
