@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdarg>
@@ -160,7 +161,8 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
                           "errRy", "errRz", "errDx", "errDy", "errDz"})
       out << "," << p << "_" << c;
   out << ",icp_error_mm,cells,matches,fm_matches,iterations,keyframe,loop_attempted,loop_accepted,"
-         "held_directions,prior,ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,ms_frame,cpu_ms,failure\n";
+         "held_directions,prior,ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,"
+         "ms_frame,cpu_ms,failure\n";
   // Per reference: frame index -> its row of errors.
   std::vector<std::vector<const FrameError*>> by_frame(
       run.scores.size(), std::vector<const FrameError*>(frames.size()));
@@ -198,8 +200,8 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
         ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
         1000.0 * f.error_rms_m, f.cells, f.matches, f.fm_matches, f.iterations, f.keyframe ? 1 : 0,
         f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.held_directions, f.prior ? 1 : 0,
-        f.ms_decode, f.ms_prefilter, f.ms_reduce,
-        f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map, f.cpu_ms);
+        f.ms_decode, f.ms_prefilter, f.ms_reduce, f.ms_register, f.ms_track, f.ms_map,
+        f.ms_track + f.ms_map, f.cpu_ms);
     out << buf << csvText(f.failure) << "\n";
   }
 }
@@ -536,13 +538,12 @@ int main(int argc, char** argv) {
     // --motion-prior sensors: the rig's sensors' motion between frames replaces the constant-
     // velocity guess, as the graph's ~guess_frame does from tf (a wheel odometry).
     std::optional<SensorMotionPrior> sensor_prior;
-    std::size_t frames_with_prior = 0;
     if (motion_prior == "sensors") {
-      if (!refs.sensors.hasServoTrack() && !refs.sensors.hasServoTruck())
-        throw std::invalid_argument(
-            "--motion-prior sensors: the bag has no rig sensor stream (track_state + "
-            "carriage_sensors, or truck_rc)");
-      sensor_prior.emplace(refs.sensors, refs.geometry);
+      try {  // no stream, an unordered or non-finite one: named by the prior's own checks
+        sensor_prior.emplace(refs.sensors, refs.geometry);
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument(std::string("--motion-prior sensors: ") + e.what());
+      }
       report.line("  motion prior  the rig's sensors (" + refs.sensors.describe() +
                   "): their motion between frames is the tracker's guess");
     }
@@ -597,10 +598,7 @@ int main(int argc, char** argv) {
           f.ms_decode = msSince(t0);
           const double cpu0 = cpuMs();
           std::optional<Eigen::Isometry3d> prior;
-          if (sensor_prior) {
-            prior = sensor_prior->next(stamp);
-            if (prior) ++frames_with_prior;
-          }
+          if (sensor_prior) prior = sensor_prior->next(stamp);
           const FrameStatus st = tracker.track(depth, stamp, prior);
           f.tracked = st.tracked;
           f.failure = st.failure;
@@ -656,7 +654,9 @@ int main(int argc, char** argv) {
     if (sensor_prior)
       report.line(fmt("motion prior: the sensors' motion guided %zu of %zu frames (the others, the "
                       "first and any outside the sensor streams, the constant-velocity guess)",
-                      frames_with_prior, frames.size()));
+                      static_cast<std::size_t>(std::count_if(
+                          frames.begin(), frames.end(), [](const FrameRecord& f) { return f.prior; })),
+                      frames.size()));
     if (out_of_order > 0)
       report.line(
           fmt("note: %zu frames skipped because their stamps go back in time (first: "
