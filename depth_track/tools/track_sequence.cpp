@@ -1,5 +1,6 @@
-// track_sequence: runs the tracker over a recorded (TUM layout) or rendered depth sequence and
-// writes the camera trajectory in TUM format. The same core objects as the nodelets.
+// track_sequence: runs the tracker over a recorded depth sequence (TUM RGB-D or 7-Scenes layout)
+// or a rendered run and writes the camera trajectory in TUM format. The same core objects as the
+// nodelets.
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -23,6 +24,7 @@
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "tracking_options.hpp"
+#include "tum_cameras.hpp"
 
 using namespace depth_track;
 
@@ -39,24 +41,26 @@ class FrameSource {
   virtual const PinholeIntrinsics& intrinsics() const = 0;
 };
 
-class TumSource : public FrameSource {
+// A recorded sequence folder (TUM RGB-D or 7-Scenes layout, readDepthSequence).
+class SequenceSource : public FrameSource {
  public:
-  TumSource(const std::string& dir, PinholeIntrinsics k, double scale, DepthRange range)
-      : frames_(readTumFrameList(dir + "/depth.txt")), k_(k), scale_(scale), range_(range) {
-    if (frames_.empty()) throw FileFormatError(dir + "/depth.txt lists no frames");
+  SequenceSource(DepthSequence seq, PinholeIntrinsics k, double scale, DepthRange range)
+      : seq_(std::move(seq)), k_(k), scale_(scale), range_(range) {
+    if (seq_.frames.empty()) throw FileFormatError(seq_.frames_source + " lists no frames");
     if (k_.width <= 0 || k_.height <= 0) {  // image size from the first frame
-      readPng16(frames_.front().path, &k_.width, &k_.height);
+      readPng16(seq_.frames.front().path, &k_.width, &k_.height);
     }
   }
-  std::size_t size() const override { return frames_.size(); }
-  double stamp(std::size_t i) const override { return frames_[i].stamp_s; }
+  std::size_t size() const override { return seq_.frames.size(); }
+  double stamp(std::size_t i) const override { return seq_.frames[i].stamp_s; }
   DepthImage frame(std::size_t i) const override {
-    return loadTumDepth(frames_[i].path, scale_, range_);
+    return loadTumDepth(seq_.frames[i].path, scale_, range_);
   }
   const PinholeIntrinsics& intrinsics() const override { return k_; }
+  const DepthSequence& sequence() const { return seq_; }
 
  private:
-  std::vector<TumFrame> frames_;
+  DepthSequence seq_;
   PinholeIntrinsics k_;
   double scale_;
   DepthRange range_;
@@ -88,29 +92,39 @@ class RenderSource : public FrameSource {
 int main(int argc, char** argv) {
   CLI::App app{
       "Track a depth sequence with the depth_track core and write the camera trajectory (TUM "
-      "format, camera-to-world). Input: a TUM-layout folder (--tum) or a rendered run "
-      "(--render)."};
+      "format, camera-to-world). Input: a recorded sequence folder (--tum / --sequence: TUM "
+      "RGB-D or 7-Scenes layout) or a rendered run (--render)."};
   std::string tum_dir, render_name, noise_name = "l515", out_path, gt_out_path, status_path;
   double depth_scale = 0.0002;
   int max_frames = 0;
   std::uint64_t seed = 1;
   bool verbose = false;
 
-  auto* tum_opt = app.add_option("--tum", tum_dir, "TUM-layout folder (depth.txt, depth/*.png)");
+  auto* tum_opt = app.add_option(
+      "--tum,--sequence", tum_dir,
+      "recorded sequence folder: TUM RGB-D (depth.txt, depth/*.png, groundtruth.txt, optional "
+      "intrinsics.txt 'fx fy cx cy units_per_metre') or 7-Scenes (frame-*.depth.png and "
+      "frame-*.pose.txt, here or in data/; optional camera-intrinsics.txt)");
   auto* render_opt =
       app.add_option("--render", render_name, "rendered run name (e.g. xtest1_05_chair, rt3)");
   tum_opt->excludes(render_opt);
   tool_options::IntrinsicsOptions intrinsics;
-  tool_options::addIntrinsicsOptions(app, intrinsics, "--tum");
-  app.add_option("--depth-scale", depth_scale,
-                 "metres per 16-bit depth unit (TUM: 0.0002 = 1/5000; RealSense: 0.001)")
-      ->capture_default_str();
+  tool_options::addIntrinsicsOptions(app, intrinsics,
+                                     "a sequence without an intrinsics file; override it");
+  std::string tum_camera;
+  app.add_option("--camera", tum_camera,
+                 "a TUM sequence's camera: fr1 | fr2 | fr3 (the published calibration)");
+  auto* scale_opt = app.add_option(
+      "--depth-scale", depth_scale,
+      "metres per 16-bit depth unit (default: the sequence's own: TUM 0.0002 = 1/5000, 7-Scenes "
+      "0.001, or intrinsics.txt's)");
   app.add_option("--noise", noise_name, "rendered noise model: l515 | d435 | none")
       ->capture_default_str();
   app.add_option("--seed", seed, "noise seed (rendered runs)")->capture_default_str();
   app.add_option("--frames", max_frames, "process at most this many frames (0 = all)");
   app.add_option("--out", out_path, "write the tracked trajectory here (TUM format)");
-  app.add_option("--gt-out", gt_out_path, "write the true trajectory here (--render only)");
+  app.add_option("--gt-out", gt_out_path,
+                 "write the ground truth here (TUM format; a rendered run's, or the sequence's)");
   app.add_option("--status-out", status_path, "per-frame status as CSV");
   app.add_flag("--verbose", verbose, "print one line per frame");
   bool map_quality = false;
@@ -142,10 +156,35 @@ int main(int argc, char** argv) {
 
     std::unique_ptr<FrameSource> source;
     const RenderSource* rendered = nullptr;
+    const SequenceSource* recorded = nullptr;
     if (!tum_dir.empty()) {
-      if (!intrinsics.given())
-        throw std::invalid_argument("--tum needs the intrinsics --fx --fy --cx --cy");
-      source = std::make_unique<TumSource>(tum_dir, intrinsics.intrinsics(), depth_scale, range);
+      DepthSequence seq = readDepthSequence(tum_dir);
+      PinholeIntrinsics K;
+      std::string k_from;
+      if (intrinsics.given()) {
+        K = intrinsics.intrinsics(), k_from = "--fx --fy --cx --cy";
+      } else if (!tum_camera.empty()) {
+        const auto k = tumIntrinsics(tum_camera);
+        if (!k) throw std::invalid_argument("--camera '" + tum_camera + "': expected fr1, fr2 or fr3");
+        K = *k, k_from = "--camera " + tum_camera;
+      } else if (seq.intrinsics) {
+        K = *seq.intrinsics, k_from = seq.intrinsics_source;
+      } else {
+        const std::string hint = tumCameraHint(std::filesystem::absolute(tum_dir).string());
+        throw std::invalid_argument(
+            tum_dir + " (" + seq.layout + ") has no intrinsics file: give --camera fr1|fr2|fr3 " +
+            "or --fx --fy --cx --cy" +
+            (hint.empty() ? "" : " (the folder's name points at --camera " + hint + ")"));
+      }
+      const double scale = scale_opt->count() > 0 ? depth_scale : seq.depth_scale_m;
+      std::printf("sequence: %s, %zu frames, %s ground truth; intrinsics fx=%.2f fy=%.2f "
+                  "cx=%.2f cy=%.2f from %s; depth unit %g m%s\n",
+                  seq.layout.c_str(), seq.frames.size(),
+                  seq.ground_truth.empty() ? "no" : "with", K.fx, K.fy, K.cx, K.cy,
+                  k_from.c_str(), scale, scale_opt->count() > 0 ? " (--depth-scale)" : "");
+      auto r = std::make_unique<SequenceSource>(std::move(seq), K, scale, range);
+      recorded = r.get();
+      source = std::move(r);
     } else {
       auto r = std::make_unique<RenderSource>(
           render_name, sim::NoiseConfig::forModel(sim::parseNoiseModel(noise_name)), seed, range);
@@ -280,23 +319,23 @@ int main(int argc, char** argv) {
     }
     if (status) std::fclose(status);
     const std::string what =
-        tum_dir.empty() ? "render " + render_name + " noise " + noise_name : "tum " + tum_dir;
+        tum_dir.empty() ? "render " + render_name + " noise " + noise_name
+                        : recorded->sequence().layout + " " + tum_dir;
     if (!out_path.empty())
       writeTumTrajectory(out_path, est,
                          "depth_track track_sequence: " + what + " method " +
                              toString(config.registration.method));
+    // Ground truth: the rendered run's, or the recorded sequence's.
+    const Trajectory& truth = rendered ? gt : recorded->sequence().ground_truth;
     if (!gt_out_path.empty()) {
-      if (!rendered)
-        throw std::invalid_argument(
-            "--gt-out needs --render (TUM folders carry their own ground truth)");
-      writeTumTrajectory(
-          gt_out_path, gt,
-          "ground truth of rendered run " + render_name + ", relative to its first pose");
+      if (truth.empty())
+        throw std::invalid_argument("--gt-out: " + tum_dir + " has no ground truth");
+      writeTumTrajectory(gt_out_path, truth,
+                         rendered ? "ground truth of rendered run " + render_name +
+                                        ", relative to its first pose"
+                                  : "ground truth of " + tum_dir + " (" +
+                                        recorded->sequence().ground_truth_source + ")");
     }
-    // Score against ground truth when there is one: the rendered run's, or the TUM folder's.
-    Trajectory truth = gt;
-    if (!rendered && std::filesystem::exists(tum_dir + "/groundtruth.txt"))
-      truth = readTumTrajectory(tum_dir + "/groundtruth.txt");
     if (truth.size() >= 2) {
       try {
         std::printf("%s\n", formatEvaluation(evaluateTrajectory(est, truth)).c_str());

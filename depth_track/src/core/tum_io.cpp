@@ -9,11 +9,14 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <memory>
 #include <numeric>
 #include <sstream>
+
+#include <Eigen/SVD>
 
 namespace depth_track {
 namespace {
@@ -77,6 +80,171 @@ std::ifstream openText(const std::string& path, const char* what) {
   if (!in)
     throw FileFormatError(path + ": cannot open " + what + " (" + std::strerror(errno) + ")");
   return in;
+}
+
+// The number rows of a small text file (comments and blank lines skipped), each with its line
+// number. Every field must be a finite number.
+struct NumberRow {
+  int line_no = 0;
+  std::vector<double> values;
+};
+std::vector<NumberRow> readNumberRows(const std::string& path, const char* what) {
+  std::ifstream in = openText(path, what);
+  std::vector<NumberRow> rows;
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (isCommentOrBlank(line)) continue;
+    NumberRow row;
+    row.line_no = line_no;
+    for (const std::string& t : tokens(line)) {
+      double v = 0.0;
+      if (!parseFinite(t, &v))
+        throw FileFormatError(where(path, line_no) + "'" + t + "' is not a finite number");
+      row.values.push_back(v);
+    }
+    rows.push_back(std::move(row));
+  }
+  return rows;
+}
+
+// Requires `rows` x `cols` numbers; the message names the file's layout.
+void requireShape(const std::vector<NumberRow>& rows, std::size_t n_rows, std::size_t n_cols,
+                  const std::string& path, const std::string& layout) {
+  for (const NumberRow& r : rows)
+    if (r.values.size() != n_cols)
+      throw FileFormatError(where(path, r.line_no) + "expected " + std::to_string(n_cols) +
+                            " numbers (" + layout + "), got " + std::to_string(r.values.size()));
+  if (rows.size() != n_rows)
+    throw FileFormatError(path + ": expected " + std::to_string(n_rows) + " row" +
+                          (n_rows == 1 ? "" : "s") + " (" + layout + "), got " +
+                          std::to_string(rows.size()));
+}
+
+PinholeIntrinsics intrinsicsOf(double fx, double fy, double cx, double cy) {
+  PinholeIntrinsics k;
+  k.width = k.height = 0;  // the caller takes the size from the frames
+  k.fx = fx, k.fy = fy, k.cx = cx, k.cy = cy;
+  return k;
+}
+
+void requirePositiveFocal(const PinholeIntrinsics& k, const std::string& path) {
+  if (!(k.fx > 0.0 && k.fy > 0.0))
+    throw FileFormatError(path + ": focal lengths must be positive (fx " + std::to_string(k.fx) +
+                          ", fy " + std::to_string(k.fy) + ")");
+}
+
+// A 7-Scenes pose file: a 4x4 camera-to-world matrix. Its rotation, written with a few digits,
+// is put back on SO(3) (nearest rotation); one further than 1e-3 from a rotation is refused.
+Eigen::Isometry3d readPoseMatrix(const std::string& path) {
+  const std::vector<NumberRow> rows = readNumberRows(path, "pose");
+  requireShape(rows, 4, 4, path, "a 4x4 camera-to-world matrix");
+  Eigen::Matrix4d M;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) M(r, c) = rows[r].values[c];
+  if ((M.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 1e-6)
+    throw FileFormatError(where(path, rows[3].line_no) + "last row must be 0 0 0 1");
+  const Eigen::Matrix3d A = M.topLeftCorner<3, 3>();
+  const double off = (A.transpose() * A - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  if (!(off <= 1e-3) || A.determinant() <= 0.0) {
+    std::ostringstream s;
+    s << path << ": the upper-left 3x3 is not a rotation (|R^T R - I| = " << off
+      << ", det = " << A.determinant() << ")";
+    throw FileFormatError(s.str());
+  }
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(A, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = svd.matrixU() * svd.matrixV().transpose();
+  T.translation() = M.topRightCorner<3, 1>();
+  return T;
+}
+
+DepthSequence readTumSequence(const std::string& dir) {
+  DepthSequence seq;
+  seq.layout = "TUM RGB-D";
+  seq.frames_source = dir + "/depth.txt";
+  seq.frames = readTumFrameList(seq.frames_source);
+  seq.depth_scale_m = 1.0 / 5000.0;
+  const std::string k_path = dir + "/intrinsics.txt";
+  if (fileExists(k_path)) {
+    const std::vector<NumberRow> rows = readNumberRows(k_path, "intrinsics");
+    requireShape(rows, 1, 5, k_path, "'fx fy cx cy units_per_metre'");
+    const std::vector<double>& v = rows.front().values;
+    seq.intrinsics = intrinsicsOf(v[0], v[1], v[2], v[3]);
+    requirePositiveFocal(*seq.intrinsics, k_path);
+    if (!(v[4] >= 1.0))
+      throw FileFormatError(where(k_path, rows.front().line_no) + "units per metre " +
+                            std::to_string(v[4]) + ": expected at least 1 (TUM 5000, mm 1000)");
+    seq.depth_scale_m = 1.0 / v[4];
+    seq.intrinsics_source = k_path;
+  }
+  const std::string gt_path = dir + "/groundtruth.txt";
+  if (fileExists(gt_path)) {
+    seq.ground_truth = readTumTrajectory(gt_path);
+    seq.ground_truth_source = gt_path;
+  }
+  return seq;
+}
+
+DepthSequence readSevenScenesSequence(const std::string& dir,
+                                      const std::vector<std::string>& depth_pngs) {
+  DepthSequence seq;
+  seq.layout = "7-Scenes";
+  seq.depth_scale_m = 0.001;
+  seq.frames_source = dir + "/frame-*.depth.png";
+  for (std::size_t i = 0; i < depth_pngs.size(); ++i)
+    seq.frames.push_back({static_cast<double>(i) / 30.0, depth_pngs[i]});
+  const std::string k_path = dir + "/camera-intrinsics.txt";
+  if (fileExists(k_path)) {
+    const std::vector<NumberRow> rows = readNumberRows(k_path, "intrinsics");
+    requireShape(rows, 3, 3, k_path, "a 3x3 camera matrix K");
+    seq.intrinsics = intrinsicsOf(rows[0].values[0], rows[1].values[1], rows[0].values[2],
+                                  rows[1].values[2]);
+    requirePositiveFocal(*seq.intrinsics, k_path);
+    seq.intrinsics_source = k_path;
+  } else {
+    seq.intrinsics = intrinsicsOf(585.0, 585.0, 320.0, 240.0);
+    seq.intrinsics_source = "the 7-Scenes published depth calibration (no " + k_path + ")";
+  }
+  // Ground truth: every frame's pose file, or none at all.
+  const std::string suffix = ".depth.png";
+  std::size_t with_pose = 0;
+  std::string first_missing;
+  std::vector<std::string> pose_paths;
+  for (const std::string& png : depth_pngs) {
+    pose_paths.push_back(png.substr(0, png.size() - suffix.size()) + ".pose.txt");
+    if (fileExists(pose_paths.back()))
+      ++with_pose;
+    else if (first_missing.empty())
+      first_missing = pose_paths.back();
+  }
+  if (with_pose > 0 && with_pose < pose_paths.size())
+    throw FileFormatError(first_missing + ": missing (" + std::to_string(with_pose) + " of " +
+                          std::to_string(pose_paths.size()) +
+                          " frames have a pose file; the ground truth needs every frame's)");
+  if (with_pose > 0) {
+    for (std::size_t i = 0; i < pose_paths.size(); ++i)
+      seq.ground_truth.push_back({seq.frames[i].stamp_s, readPoseMatrix(pose_paths[i])});
+    seq.ground_truth_source = dir + "/frame-*.pose.txt";
+  }
+  return seq;
+}
+
+// The sorted 7-Scenes depth images of `dir` (empty when there are none).
+std::vector<std::string> sevenScenesDepthImages(const std::string& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    const std::string suffix = ".depth.png";
+    if (name.rfind("frame-", 0) == 0 && name.size() > suffix.size() &&
+        name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0 &&
+        e.is_regular_file(ec))
+      out.push_back(e.path().string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
 }
 
 }  // namespace
@@ -267,6 +435,21 @@ AssociatedTrajectories associateTrajectories(const Trajectory& est, const Trajec
     out.gt_T_W_C.push_back(gt[ig].T_W_C);
   }
   return out;
+}
+
+DepthSequence readDepthSequence(const std::string& dir) {
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec))
+    throw FileFormatError(dir + ": " +
+                          (std::filesystem::exists(dir, ec) ? "not a folder" : "no such folder"));
+  if (fileExists(dir + "/depth.txt")) return readTumSequence(dir);
+  for (const std::string& d : {dir, dir + "/data"}) {
+    const std::vector<std::string> pngs = sevenScenesDepthImages(d);
+    if (!pngs.empty()) return readSevenScenesSequence(d, pngs);
+  }
+  throw FileFormatError(dir +
+                        ": not a depth sequence: no depth.txt (TUM RGB-D) and no "
+                        "frame-*.depth.png here or in data/ (7-Scenes)");
 }
 
 }  // namespace depth_track

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
@@ -316,4 +317,160 @@ TEST(TumTrajectory, TeddyDepthFramesAssociateWithGroundTruth) {
   // The dataset README: 196 of the 200 frames have ground truth within 20 ms.
   EXPECT_EQ(associateStamps(stamps, gt_s, 0.02).size(), 196u);
   for (const auto& p : gt) EXPECT_NEAR(p.T_W_C.linear().determinant(), 1.0, 1e-9);
+}
+
+namespace {
+
+// A fresh folder under the test's temp dir.
+std::string freshDir(const std::string& name) {
+  const std::string d = tempDir() + "/" + name;
+  std::system(("rm -rf '" + d + "' && mkdir -p '" + d + "'").c_str());
+  return d;
+}
+
+// A 4x3 depth PNG whose first pixel is `mm` and whose second is 65535 (7-Scenes: no return).
+void writeSevenScenesDepth(const std::string& path, std::uint16_t mm) {
+  std::vector<std::uint16_t> raw(12, 1500);
+  raw[0] = mm;
+  raw[1] = 65535;
+  writePng16(path, raw, 4, 3);
+}
+
+std::string poseText(double tx, double ty, double tz, double yaw_rad) {
+  const double c = std::cos(yaw_rad), s = std::sin(yaw_rad);
+  char buf[512];
+  std::snprintf(buf, sizeof buf,
+                "%.7e %.7e %.7e %.7e\n%.7e %.7e %.7e %.7e\n%.7e %.7e %.7e %.7e\n"
+                "0.0000000e+00 0.0000000e+00 0.0000000e+00 1.0000000e+00\n",
+                c, 0.0, s, tx, 0.0, 1.0, 0.0, ty, -s, 0.0, c, tz);
+  return buf;
+}
+
+}  // namespace
+
+TEST(DepthSequence, SevenScenesLayoutFramesPosesIntrinsicsAndUnit) {
+  const std::string root = freshDir("seq7");
+  const std::string d = root + "/data";  // the layout's data/ subfolder is found too
+  std::system(("mkdir -p '" + d + "'").c_str());
+  // Written out of order: the frames are taken in file-name order, stamped i / 30 s.
+  for (int i : {2, 0, 1}) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/frame-%06d", i);
+    writeSevenScenesDepth(d + name + ".depth.png", static_cast<std::uint16_t>(1000 + i));
+    writeText(d + name + ".pose.txt", poseText(0.1 * i, -0.2, 0.3, 0.05 * i));
+  }
+  writeText(d + "/frame-000000.color.png", "not read");
+  const DepthSequence seq = readDepthSequence(root);
+  EXPECT_EQ(seq.layout, "7-Scenes");
+  ASSERT_EQ(seq.frames.size(), 3u);
+  ASSERT_EQ(seq.ground_truth.size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_DOUBLE_EQ(seq.frames[i].stamp_s, i / 30.0);
+    EXPECT_DOUBLE_EQ(seq.ground_truth[i].stamp_s, i / 30.0);
+    EXPECT_NE(seq.frames[i].path.find("frame-00000" + std::to_string(i) + ".depth.png"),
+              std::string::npos);
+    EXPECT_NEAR(seq.ground_truth[i].T_W_C.translation().x(), 0.1 * i, 1e-9);
+    EXPECT_NEAR(Eigen::AngleAxisd(seq.ground_truth[i].T_W_C.rotation()).angle(), 0.05 * i, 1e-6);
+  }
+  EXPECT_DOUBLE_EQ(seq.depth_scale_m, 0.001);
+  // No camera-intrinsics.txt: the dataset's published calibration, and it says so.
+  ASSERT_TRUE(seq.intrinsics.has_value());
+  EXPECT_DOUBLE_EQ(seq.intrinsics->fx, 585.0);
+  EXPECT_DOUBLE_EQ(seq.intrinsics->cy, 240.0);
+  EXPECT_NE(seq.intrinsics_source.find("published"), std::string::npos);
+  // Millimetres in, metres out; 65535 (the layout's "no return") is out of any sensor range.
+  const DepthImage depth = loadTumDepth(seq.frames[2].path, seq.depth_scale_m, DepthRange{});
+  EXPECT_FLOAT_EQ(depth.at(0, 0), 1.002f);
+  EXPECT_EQ(depth.at(1, 0), 0.0f);
+
+  writeText(d + "/camera-intrinsics.txt", "585.5 0 319.5\n0 586.5 241.5\n0 0 1\n");
+  const DepthSequence with_k = readDepthSequence(root);
+  ASSERT_TRUE(with_k.intrinsics.has_value());
+  EXPECT_DOUBLE_EQ(with_k.intrinsics->fx, 585.5);
+  EXPECT_DOUBLE_EQ(with_k.intrinsics->fy, 586.5);
+  EXPECT_DOUBLE_EQ(with_k.intrinsics->cx, 319.5);
+  EXPECT_DOUBLE_EQ(with_k.intrinsics->cy, 241.5);
+  EXPECT_EQ(with_k.intrinsics_source, d + "/camera-intrinsics.txt");
+}
+
+TEST(DepthSequence, SevenScenesErrorsNameTheFile) {
+  const std::string d = freshDir("seq7bad");
+  for (int i = 0; i < 3; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/frame-%06d", i);
+    writeSevenScenesDepth(d + name + ".depth.png", 1000);
+    writeText(d + name + ".pose.txt", poseText(0, 0, 0, 0));
+  }
+  // A pose file with a field that is not a number: file and line.
+  writeText(d + "/frame-000001.pose.txt", "1 0 0 0\n0 1 0 0\n0 0 1 x\n0 0 0 1\n");
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt:3:", "'x'"});
+  // Three rows only.
+  writeText(d + "/frame-000001.pose.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n");
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt", "expected 4 rows"});
+  // Not a rotation (a scaled matrix), and a mirror.
+  writeText(d + "/frame-000001.pose.txt", "1.1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt", "not a rotation"});
+  writeText(d + "/frame-000001.pose.txt", "-1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt", "not a rotation"});
+  writeText(d + "/frame-000001.pose.txt", "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 1 1\n");
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt:4:", "0 0 0 1"});
+  // One frame without its pose file: named, with the count.
+  std::remove((d + "/frame-000001.pose.txt").c_str());
+  expectFileError([&] { readDepthSequence(d); }, {"frame-000001.pose.txt: missing", "2 of 3"});
+  // No pose file at all: a sequence without ground truth.
+  std::remove((d + "/frame-000000.pose.txt").c_str());
+  std::remove((d + "/frame-000002.pose.txt").c_str());
+  EXPECT_TRUE(readDepthSequence(d).ground_truth.empty());
+  EXPECT_EQ(readDepthSequence(d).frames.size(), 3u);
+  // A malformed intrinsics file.
+  writeText(d + "/camera-intrinsics.txt", "585 0 320\n0 585 240\n");
+  expectFileError([&] { readDepthSequence(d); }, {"camera-intrinsics.txt", "3x3"});
+  writeText(d + "/camera-intrinsics.txt", "-585 0 320\n0 585 240\n0 0 1\n");
+  expectFileError([&] { readDepthSequence(d); }, {"camera-intrinsics.txt", "positive"});
+  // Neither layout; no folder.
+  const std::string empty = freshDir("seq_empty");
+  expectFileError([&] { readDepthSequence(empty); }, {"not a depth sequence", "depth.txt",
+                                                      "frame-*.depth.png"});
+  expectFileError([&] { readDepthSequence(empty + "/nope"); }, {"no such folder"});
+}
+
+TEST(DepthSequence, TumLayoutWithAndWithoutIntrinsicsFile) {
+  const std::string d = freshDir("seqtum");
+  std::system(("mkdir -p '" + d + "/depth'").c_str());
+  writeSevenScenesDepth(d + "/depth/1.png", 5000);
+  writeSevenScenesDepth(d + "/depth/2.png", 5000);
+  writeText(d + "/depth.txt", "# depth maps\n100.5 depth/1.png\n100.6 depth/2.png\n");
+  DepthSequence seq = readDepthSequence(d);
+  EXPECT_EQ(seq.layout, "TUM RGB-D");
+  ASSERT_EQ(seq.frames.size(), 2u);
+  EXPECT_DOUBLE_EQ(seq.frames[1].stamp_s, 100.6);
+  EXPECT_DOUBLE_EQ(seq.depth_scale_m, 1.0 / 5000.0);
+  EXPECT_FALSE(seq.intrinsics.has_value());  // the user names the camera
+  EXPECT_TRUE(seq.ground_truth.empty());
+
+  writeText(d + "/groundtruth.txt", "100.49 1 2 3 0 0 0 1\n");
+  writeText(d + "/intrinsics.txt", "525 526 319.5 239.5 1000\n");
+  seq = readDepthSequence(d);
+  ASSERT_TRUE(seq.intrinsics.has_value());
+  EXPECT_DOUBLE_EQ(seq.intrinsics->fy, 526.0);
+  EXPECT_DOUBLE_EQ(seq.intrinsics->cx, 319.5);
+  EXPECT_DOUBLE_EQ(seq.depth_scale_m, 0.001);
+  ASSERT_EQ(seq.ground_truth.size(), 1u);
+  EXPECT_DOUBLE_EQ(seq.ground_truth[0].T_W_C.translation().z(), 3.0);
+
+  writeText(d + "/intrinsics.txt", "525 526 319.5 239.5\n");
+  expectFileError([&] { readDepthSequence(d); }, {"intrinsics.txt:1:", "expected 5 numbers"});
+  writeText(d + "/intrinsics.txt", "525 526 319.5 239.5 0.001\n");
+  expectFileError([&] { readDepthSequence(d); }, {"intrinsics.txt:1:", "units per metre"});
+}
+
+// The shared TUM sequences read through the sequence reader: every listed frame, the ground
+// truth, and no intrinsics (the TUM folders do not carry them).
+TEST(DepthSequence, SharedTeddyFolder) {
+  DT_TEDDY_OR_SKIP(dir);
+  const DepthSequence seq = readDepthSequence(dir);
+  EXPECT_EQ(seq.layout, "TUM RGB-D");
+  EXPECT_EQ(seq.frames.size(), readTumFrameList(dir + "/depth.txt").size());
+  EXPECT_EQ(seq.ground_truth.size(), readTumTrajectory(dir + "/groundtruth.txt").size());
+  EXPECT_FALSE(seq.intrinsics.has_value());
 }

@@ -248,7 +248,7 @@ TEST(TumToBag, RefusesAFolderWithoutFrameList) {
   TmpDir tmp;
   SmallFolder f(tmp.path, teddy, 3);
   fs::remove(f.dir + "/depth.txt");
-  expectFolderRefused(f, tmp, "depth.txt: cannot open");
+  expectFolderRefused(f, tmp, "not a depth sequence: no depth.txt");
 }
 
 TEST(TumToBag, NamesTheMalformedFrameListLine) {

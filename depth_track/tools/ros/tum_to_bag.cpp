@@ -1,7 +1,8 @@
-// tum_to_bag: turns a TUM RGB-D folder (depth.txt, depth/*.png, groundtruth.txt) into a bag with
-// the topic layout of the scenario bags (tools/ros/tum_bag.hpp), so a TUM sequence is replayed and
-// evaluated like a rig run. Offline: no roscore, no wall clock; the depth PNGs go into the bag
-// unchanged (16UC1 in TUM units, the unit recorded as depth_scale_m).
+// tum_to_bag: turns a recorded sequence folder (TUM RGB-D: depth.txt, depth/*.png, groundtruth.txt;
+// or 7-Scenes: frame-*.depth.png, frame-*.pose.txt) into a bag with the topic layout of the
+// scenario bags (tools/ros/tum_bag.hpp), so a recorded sequence is replayed and evaluated like a
+// rig run. Offline: no roscore, no wall clock; the depth PNGs go into the bag unchanged (16UC1 in
+// the folder's units, the unit recorded as depth_scale_m).
 //
 //   tum_to_bag DIR OUT.bag [--camera fr1|fr2|fr3 | --fx F --fy F --cx C --cy C] [--depth-scale S]
 //              [--compression none|lz4|bz2] [--max-frames N] [--no-ground-truth] [--overwrite]
@@ -90,14 +91,15 @@ class PartialFile {
 
 int run(int argc, char** argv) {
   CLI::App app{
-      "Writes a TUM RGB-D folder (depth.txt, depth/*.png, groundtruth.txt) as a bag: "
-      "/camera/image_rect (16UC1, TUM units; connection header depth_scale_m), "
+      "Writes a recorded sequence folder (TUM RGB-D: depth.txt, depth/*.png, groundtruth.txt; or "
+      "7-Scenes: frame-*.depth.png, frame-*.pose.txt) as a bag: "
+      "/camera/image_rect (16UC1, the folder's units; connection header depth_scale_m), "
       "/camera/camera_info, /ground_truth/camera_pose (PoseStamped, frame map) and /tf_static."};
   std::string dir, out, camera, compression = "lz4";
-  double fx = 0, fy = 0, cx = 0, cy = 0, depth_scale = kTumDepthScaleM;
+  double fx = 0, fy = 0, cx = 0, cy = 0, depth_scale = 0.0;
   int max_frames = 0;
   bool no_gt = false, overwrite = false;
-  app.add_option("DIR", dir, "TUM-layout folder")->required();
+  app.add_option("DIR", dir, "sequence folder (TUM RGB-D or 7-Scenes layout)")->required();
   app.add_option("OUT", out, "bag to write")->required();
   auto* cam_opt =
       app.add_option("--camera", camera, "TUM camera: fr1 | fr2 | fr3 (the published calibration)");
@@ -106,15 +108,17 @@ int run(int argc, char** argv) {
                                       app.add_option("--cx", cx, "principal point x, px"),
                                       app.add_option("--cy", cy, "principal point y, px")};
   for (auto* o : k_opts) o->excludes(cam_opt);
-  app.add_option("--depth-scale", depth_scale, "metres per 16-bit depth unit (TUM: 0.0002)")
-      ->capture_default_str();
+  auto* scale_opt = app.add_option(
+      "--depth-scale", depth_scale,
+      "metres per 16-bit depth unit (default: the folder's own: TUM 0.0002, 7-Scenes 0.001, or "
+      "intrinsics.txt's)");
   app.add_option("--compression", compression, "none | lz4 | bz2")
       ->check(CLI::IsMember({"none", "lz4", "bz2"}))
       ->capture_default_str();
   app.add_option("--max-frames", max_frames, "write at most this many depth frames (0 = all)")
       ->check(CLI::NonNegativeNumber);
   app.add_flag("--no-ground-truth", no_gt,
-               "write depth only (for a folder without groundtruth.txt)");
+               "write depth only (for a folder without ground truth)");
   app.add_flag("--overwrite", overwrite, "replace OUT if it exists");
   CLI11_PARSE(app, argc, argv);
 
@@ -122,6 +126,7 @@ int run(int argc, char** argv) {
   std::error_code ec;
   if (!fs::is_directory(dir, ec))
     throw UsageError(dir + ": " + (fs::exists(dir, ec) ? "not a folder" : "no such folder"));
+  DepthSequence seq = readDepthSequence(dir);
   PinholeIntrinsics K;
   const int k_given = static_cast<int>(std::count_if(
       k_opts.begin(), k_opts.end(), [](const CLI::Option* o) { return o->count() > 0; }));
@@ -131,15 +136,19 @@ int run(int argc, char** argv) {
     K = *k;
   } else if (k_given == 4) {
     K.fx = fx, K.fy = fy, K.cx = cx, K.cy = cy;
+  } else if (k_given == 0 && seq.intrinsics) {
+    K = *seq.intrinsics;
   } else {
     const std::string hint = cameraHint(dir);
     throw UsageError(
-        std::string(k_given == 0 ? "no intrinsics: " : "--fx --fy --cx --cy go together: ") +
+        std::string(k_given == 0 ? "no intrinsics (" + dir + " has no intrinsics file): "
+                                 : "--fx --fy --cx --cy go together: ") +
         "give --camera fr1|fr2|fr3 or all of --fx --fy --cx --cy" +
         (hint.empty()
              ? ""
              : " (" + dir + " looks like a " + hint + " sequence: --camera " + hint + ")"));
   }
+  if (scale_opt->count() == 0) depth_scale = seq.depth_scale_m;
   if (!(depth_scale > 0.0 && depth_scale <= 1.0))
     throw UsageError(
         "--depth-scale " + fmt(depth_scale) +
@@ -152,29 +161,29 @@ int run(int argc, char** argv) {
     throw UsageError(out_dir.string() + ": no such folder for OUT");
 
   // ---- the folder: frame list, ground truth, image size (errors name file and line)
-  std::vector<TumFrame> frames = readTumFrameList(dir + "/depth.txt");
-  if (frames.empty()) throw FileFormatError(dir + "/depth.txt lists no frames");
+  std::vector<TumFrame>& frames = seq.frames;
+  if (frames.empty()) throw FileFormatError(seq.frames_source + " lists no frames");
   requireIncreasing(
       frames, [](const TumFrame& f) { return f.stamp_s; },
       [&](std::size_t i) {
-        return dir + "/depth.txt: frame " + std::to_string(i + 1) + " (" +
+        return seq.frames_source + ": frame " + std::to_string(i + 1) + " (" +
                fs::path(frames[i].path).filename().string() + ")";
       });
   const bool cut = max_frames > 0 && static_cast<std::size_t>(max_frames) < frames.size();
   if (cut) frames.resize(max_frames);
 
   Trajectory gt;
-  const std::string gt_path = dir + "/groundtruth.txt";
   if (!no_gt) {
-    if (!fs::exists(gt_path, ec))
-      throw FileFormatError(gt_path +
-                            ": missing (the folder's ground truth; --no-ground-truth writes a bag "
-                            "of depth only, which can be tracked but not scored)");
-    gt = readTumTrajectory(gt_path);
-    if (gt.empty()) throw FileFormatError(gt_path + ": holds no poses");
+    if (seq.ground_truth.empty())
+      throw FileFormatError(
+          (seq.layout == "7-Scenes" ? dir + "/frame-*.pose.txt: none found"
+                                    : dir + "/groundtruth.txt: missing") +
+          " (the folder's ground truth; --no-ground-truth writes a bag of depth only, "
+          "which can be tracked but not scored)");
+    gt = std::move(seq.ground_truth);
     requireIncreasing(
         gt, [](const StampedPose& p) { return p.stamp_s; },
-        [&](std::size_t i) { return gt_path + ": pose " + std::to_string(i + 1); });
+        [&](std::size_t i) { return seq.ground_truth_source + ": pose " + std::to_string(i + 1); });
     if (cut) {  // a cut sequence keeps the ground truth that can still pair with its frames
       const double t_end = frames.back().stamp_s + 0.02;
       gt.erase(std::find_if(gt.begin(), gt.end(),
@@ -197,6 +206,15 @@ int run(int argc, char** argv) {
   if (compression == "lz4") bag.setCompression(rosbag::compression::LZ4);
   if (compression == "bz2") bag.setCompression(rosbag::compression::BZ2);
 
+  // A bag cannot hold time 0, where a 7-Scenes folder's stamps (i / 30 s) begin: such a run is
+  // written 1 s later, frames and ground truth alike (said on the last line).
+  double shift_s = 0.0;
+  if ((gt.empty() ? frames.front().stamp_s
+                  : std::min(frames.front().stamp_s, gt.front().stamp_s)) < 1.0) {
+    shift_s = 1.0;
+    for (TumFrame& f : frames) f.stamp_s += shift_s;
+    for (StampedPose& p : gt) p.stamp_s += shift_s;
+  }
   const double t0 =
       gt.empty() ? frames.front().stamp_s : std::min(frames.front().stamp_s, gt.front().stamp_s);
   {
@@ -265,9 +283,11 @@ int run(int argc, char** argv) {
   std::printf(
       "tum_to_bag: %zu depth frames %dx%d (fx=%g fy=%g cx=%g cy=%g, %g m per unit), %zu "
       "ground-truth "
-      "poses (%zu of %zu frames have one within 20 ms) -> %s (%.1f MB)\n",
+      "poses (%zu of %zu frames have one within 20 ms) -> %s (%.1f MB)%s\n",
       frames.size(), K.width, K.height, K.fx, K.fy, K.cx, K.cy, depth_scale, gt.size(), paired,
-      frames.size(), out.c_str(), static_cast<double>(fs::file_size(out)) / 1e6);
+      frames.size(), out.c_str(), static_cast<double>(fs::file_size(out)) / 1e6,
+      shift_s > 0.0 ? "; stamps written 1 s later than the folder's (a bag cannot hold time 0)"
+                    : "");
   return 0;
 }
 

@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -77,6 +78,31 @@ void writeTumTrajectory(const std::string& path, const Trajectory& trajectory,
 std::vector<std::pair<std::size_t, std::size_t>> associateStamps(
     const std::vector<double>& query_s, const std::vector<double>& reference_s,
     double max_gap_s = 0.02);
+
+/// A recorded depth sequence, read from a folder in one of two layouts:
+/// - TUM RGB-D: `depth.txt` (stamp, PNG path), `groundtruth.txt` (optional), 5000 units per metre.
+///   An optional `intrinsics.txt` holding "fx fy cx cy units_per_metre" gives the camera and the
+///   unit (a layout other datasets are often converted to).
+/// - 7-Scenes: `frame-NNNNNN.depth.png` (millimetres, 65535 = no return) with
+///   `frame-NNNNNN.pose.txt` (4x4 camera-to-world), in the folder or its `data/` subfolder. The
+///   frames carry no stamps: frame i (in file-name order) is stamped i / 30 s, the Kinect's rate.
+///   Intrinsics from `camera-intrinsics.txt` (3x3 K) when present, otherwise the dataset's
+///   published depth calibration (fx = fy = 585, cx = 320, cy = 240).
+struct DepthSequence {
+  std::string layout;                           ///< "TUM RGB-D" or "7-Scenes"
+  std::vector<TumFrame> frames;                 ///< in time order
+  std::string frames_source;                    ///< DIR/depth.txt or DIR/frame-*.depth.png
+  double depth_scale_m = 0.0;                   ///< metres per PNG unit
+  std::optional<PinholeIntrinsics> intrinsics;  ///< from the folder (image size 0x0), if known
+  std::string intrinsics_source;                ///< where `intrinsics` came from
+  Trajectory ground_truth;                      ///< camera-to-world; empty when the folder has none
+  std::string ground_truth_source;              ///< file (TUM) or "frame-*.pose.txt" (7-Scenes)
+};
+
+/// Reads a sequence folder (either layout above). Throws FileFormatError naming the file (and
+/// line) for a malformed list, intrinsics or pose file, a 7-Scenes frame without its pose file,
+/// a pose that is not a rigid transform, or a folder in neither layout. Thread-safe.
+DepthSequence readDepthSequence(const std::string& dir);
 
 /// Estimated and ground-truth poses paired by stamp (equal lengths, estimate order).
 struct AssociatedTrajectories {
