@@ -57,8 +57,8 @@ std::vector<std::string> CellOdometryConfig::validate() const {
   if (!(max_error_rms_m > 0.0)) p.push_back("max_error_rms_m must be > 0 m");
   if (!(max_jump_m > 0.0)) p.push_back("max_jump_m must be > 0 m");
   if (!(max_jump_deg > 0.0)) p.push_back("max_jump_deg must be > 0 deg");
-  if (velocity_window < 0 || velocity_window > 300)
-    p.push_back("velocity_window must lie in [0, 300] frames");
+  if (!(velocity_span_s >= 0.0 && velocity_span_s <= 10.0))
+    p.push_back("velocity_span must lie in [0, 10] s");
   if (!(velocity_firm_information >= 0.0))
     p.push_back("velocity_firm_information must be >= 0 (0 = every frame counts)");
   for (const auto& s : relocalise.validate()) p.push_back(s);
@@ -166,7 +166,7 @@ void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
 
 std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s,
                                                                   bool firm_only) const {
-  if (config_.velocity_window < 2 || history_.size() < 2) return std::nullopt;
+  if (!(config_.velocity_span_s > 0.0) || history_.size() < 2) return std::nullopt;
   const double threshold = config_.velocity_firm_information;
   const auto is_firm = [&](const HistoryEntry& h) { return h.weakest_information >= threshold; };
   const bool only_firm = firm_only && threshold > 0.0 &&
@@ -356,7 +356,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
       history_.push_back({st.stamp_s, T_W_C_, st.weakest_information});
-      while (static_cast<int>(history_.size()) > std::max(2, config_.velocity_window))
+      while (history_.size() > 2 &&
+             history_.back().stamp_s - history_.front().stamp_s > config_.velocity_span_s)
         history_.pop_front();
     }
   } else {

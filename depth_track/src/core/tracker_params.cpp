@@ -158,9 +158,10 @@ std::vector<ParamSpec> makeParams() {
                   [](TrackerConfig& c) -> double& { return c.max_jump_m; }));
   p.push_back(num("max_jump_angle", "deg", "larger rotation correction = failed frame",
                   [](TrackerConfig& c) -> double& { return c.max_jump_deg; }));
-  p.push_back(num("velocity_window", "frames",
-                  "prediction's translation from the velocity fitted over this many frames",
-                  [](TrackerConfig& c) -> int& { return c.velocity_window; }));
+  p.push_back(num("velocity_span", "s",
+                  "held directions follow the velocity fitted over the fully constrained frames "
+                  "of this many seconds (0.65 s = 20 frames at 30 Hz; 0 = the last frame's)",
+                  [](TrackerConfig& c) -> double& { return c.velocity_span_s; }));
   p.push_back(num("velocity_firm_information", "",
                   "held directions follow the velocity of the window's frames whose weakest "
                   "direction had at least this many times its noise floor (0 = all frames)",

@@ -228,11 +228,15 @@ TEST(WholeRun, Room3D435WithoutModel) {
 namespace {
 
 // With `mapping`, every frame also goes through a Mapper, accepted loop-closure corrections fed
-// back into the tracker as track_sequence does.
+// back into the tracker as track_sequence does. `stride` > 1 takes every stride-th frame (a
+// camera at 30 / stride Hz).
 TrajectoryEvaluation trackTum(const std::string& dir, const PinholeIntrinsics& K,
                               const TrackerConfig& cfg, const char* label,
-                              const MapperConfig* mapping = nullptr, int* accepted = nullptr) {
-  const std::vector<TumFrame> frames = readTumFrameList(dir + "/depth.txt");
+                              const MapperConfig* mapping = nullptr, int* accepted = nullptr,
+                              std::size_t stride = 1) {
+  const std::vector<TumFrame> all = readTumFrameList(dir + "/depth.txt");
+  std::vector<TumFrame> frames;
+  for (std::size_t i = 0; i < all.size(); i += stride) frames.push_back(all[i]);
   Tracker tracker(K, cfg);
   std::unique_ptr<Mapper> mapper;
   if (mapping) mapper = std::make_unique<Mapper>(K, *mapping, tracker.pose());
@@ -282,6 +286,20 @@ TEST(WholeRun, TumFr1XyzDefaults) {
   DT_FR1_XYZ_OR_SKIP(dir);
   const TrajectoryEvaluation ev = trackTum(dir, kFr1, TrackerConfig{}, "fr1/xyz defaults");
   EXPECT_GE(ev.standard.frames, 780u);
+  EXPECT_LE(ev.standard.ate_rmse_m, 0.02);
+}
+
+// A slower camera, or one that drops frames: fr1/xyz at 7.5 Hz (every 4th frame, up to 8 cm
+// and 4.7 deg between frames). Measured 2026-12-05: 0.0161 m. While the velocity the held
+// directions follow was fitted over a count of frames (20, 2.7 s at this rate, across the
+// hand's changes of direction) it scored 0.236 m: frames 101-105 held two directions at that
+// velocity, every frame flagged tracked. The span is now in seconds (velocity_span, 0.65 s).
+// (6 Hz: 0.037 m; 5 Hz loses the track, docs/tracking.md.)
+TEST(WholeRun, TumFr1XyzAtQuarterRate) {
+  DT_FR1_XYZ_OR_SKIP(dir);
+  const TrajectoryEvaluation ev =
+      trackTum(dir, kFr1, TrackerConfig{}, "fr1/xyz every 4th frame", nullptr, nullptr, 4);
+  EXPECT_GE(ev.standard.frames, 195u);
   EXPECT_LE(ev.standard.ate_rmse_m, 0.02);
 }
 

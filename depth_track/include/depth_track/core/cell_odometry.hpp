@@ -58,12 +58,14 @@ struct CellOdometryConfig {
   double max_jump_deg = 15.0;     ///< ... degrees
   bool constant_velocity = true;  ///< predict with the last motion (else: no motion)
   /// Along directions the view cannot fix (RegistrationConfig::degeneracy) the pose follows the
-  /// camera's velocity fitted over the last velocity_window frames whose view fixed every
-  /// direction (a line through their positions, their mean rotation rate): one frame's motion
-  /// carries that frame's registration noise (~0.3 mm at 30 Hz is ~9 mm/s of drift), and the
-  /// frames of a view turning degenerate follow weak constraints. <= 1 = the last frame's
-  /// motion, as everywhere else.
-  int velocity_window = 20;
+  /// camera's velocity fitted over the frames whose view fixed every direction, over the last
+  /// velocity_span_s seconds up to the latest of them (a line through their positions, their
+  /// mean rotation rate): one frame's motion carries that frame's registration noise (~0.3 mm at
+  /// 30 Hz is ~9 mm/s of drift), and the frames of a view turning degenerate follow weak
+  /// constraints. A span in seconds, not frames: a camera at 7.5 Hz (or dropping frames) must
+  /// not fit its velocity over several seconds of hand-held motion. 0.65 s holds 20 frames at
+  /// 30 Hz. 0 = the last frame's motion, as everywhere else.
+  double velocity_span_s = 0.65;
   /// The velocity the held directions follow is fitted to the window's firm frames only: those
   /// whose weakest direction carried at least this many times its noise floor
   /// (FrameStatus::weakest_information). A view turning degenerate fixes its weak directions less
@@ -221,7 +223,7 @@ class CellOdometry {
   TrackingState state_ = TrackingState::kLost;
   int frames_since_refresh_ = 0;
   double last_stamp_s_ = 0.0;
-  /// The last velocity_window tracked frames whose view fixed every direction.
+  /// The tracked frames whose view fixed every direction, over velocity_span_s up to the latest.
   struct HistoryEntry {
     double stamp_s;
     Eigen::Isometry3d T_W_C;
