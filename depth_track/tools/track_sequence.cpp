@@ -54,7 +54,7 @@ class SequenceSource : public FrameSource {
   std::size_t size() const override { return seq_.frames.size(); }
   double stamp(std::size_t i) const override { return seq_.frames[i].stamp_s; }
   DepthImage frame(std::size_t i) const override {
-    return loadTumDepth(seq_.frames[i].path, scale_, range_);
+    return loadSequenceDepth(seq_, i, scale_, range_);
   }
   const PinholeIntrinsics& intrinsics() const override { return k_; }
   const DepthSequence& sequence() const { return seq_; }

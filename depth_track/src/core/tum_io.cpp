@@ -192,6 +192,7 @@ DepthSequence readSevenScenesSequence(const std::string& dir,
   DepthSequence seq;
   seq.layout = "7-Scenes";
   seq.depth_scale_m = 0.001;
+  seq.no_return_raw = 65535;
   seq.frames_source = dir + "/frame-*.depth.png";
   for (std::size_t i = 0; i < depth_pngs.size(); ++i)
     seq.frames.push_back({static_cast<double>(i) / 30.0, depth_pngs[i]});
@@ -450,6 +451,28 @@ DepthSequence readDepthSequence(const std::string& dir) {
   throw FileFormatError(dir +
                         ": not a depth sequence: no depth.txt (TUM RGB-D) and no "
                         "frame-*.depth.png here or in data/ (7-Scenes)");
+}
+
+std::vector<std::uint16_t> readSequenceDepthRaw(const DepthSequence& seq, std::size_t i,
+                                                int* width, int* height) {
+  if (i >= seq.frames.size())
+    throw std::out_of_range("readSequenceDepthRaw: frame " + std::to_string(i) + " of " +
+                            std::to_string(seq.frames.size()));
+  std::vector<std::uint16_t> raw = readPng16(seq.frames[i].path, width, height);
+  if (seq.no_return_raw != 0) std::replace(raw.begin(), raw.end(), seq.no_return_raw, std::uint16_t{0});
+  return raw;
+}
+
+DepthImage loadSequenceDepth(const DepthSequence& seq, std::size_t i, double depth_scale_m,
+                             const DepthRange& range) {
+  int w = 0, h = 0;
+  const std::vector<std::uint16_t> raw = readSequenceDepthRaw(seq, i, &w, &h);
+  try {
+    return depthFromRaw(raw.data(), w, h, 2 * static_cast<std::size_t>(w), DepthEncoding::kU16,
+                        depth_scale_m, range);
+  } catch (const DepthInputError& e) {
+    throw DepthInputError(seq.frames[i].path + ": " + e.what());
+  }
 }
 
 }  // namespace depth_track

@@ -378,10 +378,15 @@ TEST(DepthSequence, SevenScenesLayoutFramesPosesIntrinsicsAndUnit) {
   EXPECT_DOUBLE_EQ(seq.intrinsics->fx, 585.0);
   EXPECT_DOUBLE_EQ(seq.intrinsics->cy, 240.0);
   EXPECT_NE(seq.intrinsics_source.find("published"), std::string::npos);
-  // Millimetres in, metres out; 65535 (the layout's "no return") is out of any sensor range.
-  const DepthImage depth = loadTumDepth(seq.frames[2].path, seq.depth_scale_m, DepthRange{});
+  // Millimetres in, metres out; 65535 (the layout's "no return") is no return at any range.
+  const DepthImage depth = loadSequenceDepth(seq, 2, seq.depth_scale_m, DepthRange{0.1, 100.0});
   EXPECT_FLOAT_EQ(depth.at(0, 0), 1.002f);
   EXPECT_EQ(depth.at(1, 0), 0.0f);
+  int w = 0, h = 0;
+  const std::vector<std::uint16_t> raw = readSequenceDepthRaw(seq, 2, &w, &h);
+  EXPECT_EQ(raw[1], 0);
+  EXPECT_EQ(raw[0], 1002);
+  EXPECT_THROW(readSequenceDepthRaw(seq, 3, &w, &h), std::out_of_range);
 
   writeText(d + "/camera-intrinsics.txt", "585.5 0 319.5\n0 586.5 241.5\n0 0 1\n");
   const DepthSequence with_k = readDepthSequence(root);

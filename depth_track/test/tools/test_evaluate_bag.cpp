@@ -529,6 +529,25 @@ TEST(TrackSequenceSevenScenes, TeddyWrittenAsSevenScenesTracksLikeTheTumFolder) 
             std::string::npos)
       << r.output;
   EXPECT_NE(r.output.find("written 1 s later"), std::string::npos) << r.output;
+  {  // 65535 (7-Scenes' no return) goes into the bag as 0 (REP 118), every other value as it was
+    int w = 0, h = 0;
+    const std::vector<std::uint16_t> png = readPng16(data + "/frame-000000.depth.png", &w, &h);
+    rosbag::Bag b(bag);
+    rosbag::View view(b, rosbag::TopicQuery("/camera/image_rect"));
+    ASSERT_NE(view.begin(), view.end());
+    const auto img = view.begin()->instantiate<sensor_msgs::Image>();
+    ASSERT_TRUE(img && img->data.size() == png.size() * 2);
+    std::size_t no_return = 0, differ = 0;
+    for (std::size_t i = 0; i < png.size(); ++i) {
+      std::uint16_t v;
+      std::memcpy(&v, &img->data[2 * i], 2);
+      if (png[i] == 65535) no_return += v == 0;
+      else differ += v != png[i];
+    }
+    EXPECT_GT(no_return, 1000u);
+    EXPECT_EQ(no_return, static_cast<std::size_t>(std::count(png.begin(), png.end(), 65535)));
+    EXPECT_EQ(differ, 0u);
+  }
   r = evaluate(bag + " --out-dir " + out.path, out.path);
   ASSERT_EQ(r.rc, 0) << r.output;
   const Summary s = lastLine(r.output);

@@ -1,8 +1,9 @@
 // tum_to_bag: turns a recorded sequence folder (TUM RGB-D: depth.txt, depth/*.png, groundtruth.txt;
 // or 7-Scenes: frame-*.depth.png, frame-*.pose.txt) into a bag with the topic layout of the
 // scenario bags (tools/ros/tum_bag.hpp), so a recorded sequence is replayed and evaluated like a
-// rig run. Offline: no roscore, no wall clock; the depth PNGs go into the bag unchanged (16UC1 in
-// the folder's units, the unit recorded as depth_scale_m).
+// rig run. Offline: no roscore, no wall clock; the depth PNGs go into the bag as they are (16UC1 in
+// the folder's units, the unit recorded as depth_scale_m), but for a layout's own "no return"
+// value (7-Scenes: 65535), which becomes 0 (REP 118).
 //
 //   tum_to_bag DIR OUT.bag [--camera fr1|fr2|fr3 | --fx F --fy F --cx C --cy C] [--depth-scale S]
 //              [--compression none|lz4|bz2] [--max-frames N] [--no-ground-truth] [--overwrite]
@@ -249,7 +250,7 @@ int run(int argc, char** argv) {
     }
     const TumFrame& f = frames[fi];
     int w = 0, h = 0;
-    const std::vector<std::uint16_t> raw = readPng16(f.path, &w, &h);
+    const std::vector<std::uint16_t> raw = readSequenceDepthRaw(seq, fi, &w, &h);
     if (w != K.width || h != K.height)
       throw FileFormatError(f.path + ": " + std::to_string(w) + "x" + std::to_string(h) +
                             " image, the first frame is " + std::to_string(K.width) + "x" +

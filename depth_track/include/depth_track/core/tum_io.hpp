@@ -93,11 +93,24 @@ struct DepthSequence {
   std::vector<TumFrame> frames;                 ///< in time order
   std::string frames_source;                    ///< DIR/depth.txt or DIR/frame-*.depth.png
   double depth_scale_m = 0.0;                   ///< metres per PNG unit
+  /// A raw value the layout uses for "no return" besides 0 (7-Scenes: 65535); 0 = none.
+  std::uint16_t no_return_raw = 0;
   std::optional<PinholeIntrinsics> intrinsics;  ///< from the folder (image size 0x0), if known
   std::string intrinsics_source;                ///< where `intrinsics` came from
   Trajectory ground_truth;                      ///< camera-to-world; empty when the folder has none
   std::string ground_truth_source;              ///< file (TUM) or "frame-*.pose.txt" (7-Scenes)
 };
+
+/// Frame i's raw 16-bit depth (row-major, width x height) with the layout's own "no return"
+/// value (DepthSequence::no_return_raw) set to 0, the one meaning of no return everywhere else
+/// (REP 118). Throws FileFormatError naming the file. Thread-safe.
+std::vector<std::uint16_t> readSequenceDepthRaw(const DepthSequence& seq, std::size_t i,
+                                                int* width, int* height);
+
+/// Frame i in metres (readSequenceDepthRaw, then depthFromRaw at `depth_scale_m` over `range`).
+/// Throws FileFormatError / DepthInputError naming the file. Thread-safe.
+DepthImage loadSequenceDepth(const DepthSequence& seq, std::size_t i, double depth_scale_m,
+                             const DepthRange& range);
 
 /// Reads a sequence folder (either layout above). Throws FileFormatError naming the file (and
 /// line) for a malformed list, intrinsics or pose file, a 7-Scenes frame without its pose file,
