@@ -240,6 +240,7 @@ int main(int argc, char** argv) {
     RunningStats ms(std::max<std::size_t>(1, n));  // a window of the whole run: exact quantiles
     int tracked = 0, bad_frames = 0;
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
+    int retried = 0, retry_kept = 0;             // registered again from the previous pose
     std::map<std::string, int> failures;
     long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
     for (std::size_t i = 0; i < n; ++i) {
@@ -261,6 +262,8 @@ int main(int argc, char** argv) {
           st = tracker.track(depth, source->stamp(i));
           keyframe_cells += st.model.cells;
           refined_cells += st.model.refined;
+          retried += st.retried;
+          retry_kept += st.retry_kept;
           if (mapper) {
             // Accepted corrections move the tracker (its world is the map frame), which keeps
             // this tool's trajectories as they were; the graph keeps the tracker in odom and a
@@ -345,6 +348,9 @@ int main(int argc, char** argv) {
     }
     for (const auto& [reason, count] : failures)
       std::printf("flagged %d frames: %s\n", count, reason.c_str());
+    if (retried > 0)
+      std::printf("registered again from the previous pose: %d frames, %d kept (retry_pairs_below)\n",
+                  retried, retry_kept);
     if (tracker.noiseCalibration())
       std::printf("noise: %s\n", tracker.noiseCalibration()->summary.c_str());
     const CellCloud& cells = tracker.lastCells();

@@ -24,6 +24,9 @@ double weakestInformation(const DegeneracyAnalysis& a) {
 // acceleration of ~2 m/s^2, which a hand or a rig starting to move can reach unannounced; a
 // camera at rest must not earn a prior that its first move then breaks.
 constexpr double kMinPriorSigmaM = 0.002;
+// A retry from the previous pose replaces the first registration only with this many times its
+// pairs (CellOdometryConfig::retry_pairs_below).
+constexpr double kRetryPairsGain = 1.5;
 // ... and a prior that has not yet predicted any frame is worth little (1 cm per frame).
 constexpr double kUntestedPriorSigmaM = 0.01;
 }  // namespace
@@ -61,6 +64,8 @@ std::vector<std::string> CellOdometryConfig::validate() const {
     p.push_back("velocity_span must lie in [0, 10] s");
   if (!(velocity_firm_information >= 0.0))
     p.push_back("velocity_firm_information must be >= 0 (0 = every frame counts)");
+  if (!(retry_pairs_below >= 0.0 && retry_pairs_below <= 1.0))
+    p.push_back("retry_pairs_below must lie in [0, 1] (0 = off)");
   for (const auto& s : relocalise.validate()) p.push_back(s);
   for (const auto& s : model.validate()) p.push_back(s);
   return p;
@@ -250,7 +255,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   }
 
   const auto t1 = std::chrono::steady_clock::now();
-  const Eigen::Isometry3d guess = T_W_Cref_.inverse() * T_W_pred;
+  Eigen::Isometry3d guess = T_W_Cref_.inverse() * T_W_pred;
   // The smoothed prediction the held directions would follow, and how good it has been.
   const std::optional<Eigen::Isometry3d> smoothed = prior_T_Cprev_Ccur || !config_.constant_velocity
                                                         ? std::nullopt
@@ -277,13 +282,33 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     // graph's covered-lens run: 22 mm off, lost again 12 frames later). The keyframe's own
     // cells are the reference until tracking resumes, as without the model.
     const bool raw = raw_reference_ && state_ != TrackingState::kTracking;
-    reg = registerCells(raw ? *raw_reference_ : *reference_, raw ? raw_grid_ : grid_, *cells,
-                        intrinsics_, guess, reg_config);
-    // A view that leaves directions unfixed is registered against the keyframe's own cells:
-    // along the directions it does fix, the model's voxel-sized planes blur the few edges
-    // that fix them.
-    if (!raw && raw_reference_ && reg.degeneracy.degenerate > 0)
-      reg = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, guess, reg_config);
+    const auto registerFrom = [&](const Eigen::Isometry3d& g) {
+      RegistrationResult r = registerCells(raw ? *raw_reference_ : *reference_,
+                                           raw ? raw_grid_ : grid_, *cells, intrinsics_, g,
+                                           reg_config);
+      // A view that leaves directions unfixed is registered against the keyframe's own cells:
+      // along the directions it does fix, the model's voxel-sized planes blur the few edges
+      // that fix them.
+      if (!raw && raw_reference_ && r.degeneracy.degenerate > 0)
+        r = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, g, reg_config);
+      return r;
+    };
+    reg = registerFrom(guess);
+    // Held directions with the pairs collapsed: the guess, not the view, may be what is wrong
+    // (CellOdometryConfig::retry_pairs_below). Once more from the previous pose.
+    if (state_ == TrackingState::kTracking && reg.failure.empty() &&
+        reg.degeneracy.degenerate > 0 && last_firm_matches_ > 0 &&
+        reg.matches < config_.retry_pairs_below * last_firm_matches_) {
+      const Eigen::Isometry3d at_rest = T_W_Cref_.inverse() * T_W_C_;
+      RegistrationResult again = registerFrom(at_rest);
+      st.retried = true;
+      if (again.failure.empty() && again.degeneracy.degenerate == 0 &&
+          again.matches >= kRetryPairsGain * reg.matches) {
+        reg = std::move(again);
+        guess = at_rest;
+        st.retry_kept = true;
+      }
+    }
   }
   st.ms_register = msSince(t1);
   timing_.add(st.ms_register);
@@ -338,6 +363,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     }
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     last_held_ = held;
+    if (!held) last_firm_matches_ = reg.matches;
     st.tracked = true;
     state_ = TrackingState::kTracking;
     velocity_T_Cprev_Ccur_ = T_W_prev.inverse() * T_W_C_;

@@ -166,6 +166,10 @@ std::vector<ParamSpec> makeParams() {
                   "held directions follow the velocity of the window's frames whose weakest "
                   "direction had at least this many times its noise floor (0 = all frames)",
                   [](TrackerConfig& c) -> double& { return c.velocity_firm_information; }));
+  p.push_back(num("retry_pairs_below", "",
+                  "a frame that holds directions with fewer pairs than this fraction of the last "
+                  "fully constrained frame's is registered again from the previous pose (0 = off)",
+                  [](TrackerConfig& c) -> double& { return c.retry_pairs_below; }));
   p.push_back(num("auto_noise", "",
                   "measure the depth noise on the first frame and set edge test, pooling and "
                   "gates from it (on/off)",

@@ -73,6 +73,14 @@ struct CellOdometryConfig {
   /// the velocity carries that slide through the whole degenerate stretch. With fewer than three
   /// firm frames in the window, all count. 0 = all frames count.
   double velocity_firm_information = 10.0;
+  /// A frame that holds directions with fewer pairs than this fraction of the last fully
+  /// constrained frame's is registered once more from the previous pose (no motion), and that
+  /// result is kept when it fixes every direction with at least 1.5 times the pairs. Between
+  /// distant frames (a slow frame rate, dropped frames) a hand that reverses or stops leaves the
+  /// constant-velocity guess centimetres off: the pairs that fix the motion fall outside the
+  /// gates, and the planes that remain look like a degenerate view. A view that is degenerate
+  /// stays so from any guess and keeps the first result. 0 = off.
+  double retry_pairs_below = 0.6;
   RelocaliseConfig relocalise;
   /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
   /// cells replaced by the model's planes where it is confident (SurfaceModel).
@@ -109,6 +117,9 @@ struct FrameStatus {
   Matrix6d covariance = Matrix6d::Zero();
   double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
   bool new_keyframe = false;  ///< the frame became the reference for the next ones
+  /// Registered again from the previous pose (CellOdometryConfig::retry_pairs_below); kept: that
+  /// result is the frame's.
+  bool retried = false, retry_kept = false;
   /// With new_keyframe and the model on: how the model refined the keyframe's cells.
   ModelRefineStats model;
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
@@ -235,6 +246,7 @@ class CellOdometry {
   /// degeneracy weighing.
   double prior_var_m2_ = 1e-4;
   bool last_held_ = false;  ///< the last tracked frame held directions (release_margin applies)
+  int last_firm_matches_ = 0;  ///< pairs of the last tracked frame that held no direction
   RunningStats timing_;
   /// Empties the registration model and its frame offset (reset).
   void clearModel();
