@@ -4,7 +4,8 @@
 //   sim   renders depth_track's analytic scene from the simulator's true camera pose (T_W_C on
 //         ~pose_topic) with the L515 / D435 noise model of depth_track_sim, or a measured one
 //         (~noise_model_file: camera_check's YAML)
-//   tum   plays a TUM-layout folder (depth.txt + 16-bit PNGs) at its timestamps
+//   tum   plays a recorded sequence folder at its timestamps: the TUM RGB-D layout (depth.txt +
+//         16-bit PNGs) or the 7-Scenes layout (frame-*.depth.png), depth_track's readDepthSequence
 // Continuous at ~rate_hz, or with ~triggered one frame per ~trigger call (mode 2 sequencer).
 // Parameters: config/drivers.yaml.
 #include <fcntl.h>
@@ -259,18 +260,37 @@ class SimBackend : public Backend {
 // ---- tum ------------------------------------------------------------------------------------
 class TumBackend : public Backend {
  public:
+  // The folder's own intrinsics file (intrinsics.txt, camera-intrinsics.txt, or 7-Scenes'
+  // published calibration) replaces `K`, its image size taken from the first frame; scale_m <= 0
+  // takes the folder's unit. Stamps that begin before 1 s (7-Scenes: frame i at i / 30 s) are
+  // published 1 s later: a stamp of 0 reads as "the latest" to a tf lookup.
   TumBackend(const std::string& folder, const dt::PinholeIntrinsics& K, double scale_m,
              const dt::DepthRange& range, bool loop, bool file_stamps)
-      : frames_(dt::readTumFrameList(folder + "/depth.txt")),
+      : seq_(dt::readDepthSequence(folder)),
         K_(K),
-        scale_(scale_m),
+        scale_(scale_m > 0.0 ? scale_m : seq_.depth_scale_m),
         range_(range),
         loop_(loop),
         file_stamps_(file_stamps) {
-    if (frames_.empty()) throw std::runtime_error("tum backend: " + folder + "/depth.txt is empty");
+    if (seq_.frames.empty()) throw std::runtime_error("tum backend: " + seq_.frames_source + " lists no frames");
+    if (seq_.intrinsics) {
+      K_ = *seq_.intrinsics;
+      dt::readPng16(seq_.frames.front().path, &K_.width, &K_.height);
+      const auto problems = K_.validate();
+      if (!problems.empty())
+        throw std::runtime_error("tum backend: " + seq_.intrinsics_source + ": " +
+                                 dt::joinProblems(problems));
+    }
+    if (seq_.frames.front().stamp_s < 1.0) stamp_offset_s_ = 1.0;
+    ROS_INFO("depth_camera: %s folder %s, %zu frames, intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f "
+             "%dx%d from %s, %g m per unit%s",
+             seq_.layout.c_str(), folder.c_str(), seq_.frames.size(), K_.fx, K_.fy, K_.cx, K_.cy,
+             K_.width, K_.height,
+             seq_.intrinsics ? seq_.intrinsics_source.c_str() : "~fx ~fy ~cx ~cy", scale_,
+             stamp_offset_s_ > 0.0 && file_stamps_ ? "; stamps 1 s later than the files'" : "");
   }
   bool grab(Grab* out, std::string* why) override {
-    if (next_ >= frames_.size()) {
+    if (next_ >= seq_.frames.size()) {
       if (!loop_) {
         *why = "tum: end of the sequence";
         done_ = true;
@@ -279,18 +299,18 @@ class TumBackend : public Backend {
       next_ = 0;
       start_ = ros::WallTime();
     }
-    const auto& f = frames_[next_];
+    const auto& f = seq_.frames[next_];
     if (start_.isZero()) {
       start_ = ros::WallTime::now();
-      first_stamp_ = frames_[next_].stamp_s;
+      first_stamp_ = f.stamp_s;
     }
     // Play at the recorded timestamps: frame i is due (stamp_i - stamp_0) after the start.
     const ros::WallTime due = start_ + ros::WallDuration(f.stamp_s - first_stamp_);
     const ros::WallDuration wait = due - ros::WallTime::now();
     if (wait > ros::WallDuration(0)) wait.sleep();
-    out->depth = dt::loadTumDepth(f.path, scale_, range_);
+    out->depth = dt::loadSequenceDepth(seq_, next_, scale_, range_);
     dt::checkFrameSize(out->depth, K_);
-    out->stamp = file_stamps_ ? ros::Time(f.stamp_s) : ros::Time::now();
+    out->stamp = file_stamps_ ? ros::Time(f.stamp_s + stamp_offset_s_) : ros::Time::now();
     ++next_;
     return true;
   }
@@ -298,11 +318,12 @@ class TumBackend : public Backend {
   bool finished() const override { return done_; }
 
  private:
-  std::vector<dt::TumFrame> frames_;
+  dt::DepthSequence seq_;
   dt::PinholeIntrinsics K_;
   double scale_;
   dt::DepthRange range_;
   bool loop_, file_stamps_;
+  double stamp_offset_s_ = 0.0;
   std::size_t next_ = 0;
   ros::WallTime start_;
   double first_stamp_ = 0;
@@ -345,7 +366,7 @@ class DepthCameraNode {
     pnh.param("static_pose", static_pose, static_pose);
     pnh.param("pose_wait_s", pose_wait_s, 2.0);
     pnh.param<std::string>("tum_folder", tum_folder, "");
-    pnh.param("tum_depth_scale_m", tum_scale_m, 1.0 / 5000.0);
+    pnh.param("tum_depth_scale_m", tum_scale_m, 0.0);
     pnh.param("loop", loop, false);
     pnh.param("use_file_stamps", file_stamps, true);
 
@@ -368,6 +389,8 @@ class DepthCameraNode {
     else if (max_m / out_scale_m_ > 65535)
       problems.push_back("~max_depth_m / ~depth_scale_m exceeds the 16-bit range");
     if (backend == "tum" && tum_folder.empty()) problems.push_back("~tum_folder is required");
+    if (!(tum_scale_m >= 0.0 && tum_scale_m <= 1.0))
+      problems.push_back("~tum_depth_scale_m must be in [0, 1] m per unit (0 = the folder's own)");
     if (!static_pose.empty() && static_pose.size() != 7)
       problems.push_back("~static_pose needs 7 numbers [x y z qx qy qz qw] (m, T_W_C)");
     for (double v : static_pose)
