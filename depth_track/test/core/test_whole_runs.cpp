@@ -295,7 +295,7 @@ TEST(WholeRun, TumFr1XyzDefaults) {
 // directions follow was fitted over a count of frames (20, 2.7 s at this rate, across the
 // hand's changes of direction) it scored 0.236 m: frames 101-105 held two directions at that
 // velocity, every frame flagged tracked. The span is now in seconds (velocity_span, 0.65 s).
-// (6 Hz: 0.037 m; 5 Hz loses the track, docs/tracking.md.)
+// (6 Hz: 0.037 m, docs/tracking.md; 5 Hz: the next test.)
 TEST(WholeRun, TumFr1XyzAtQuarterRate) {
   DT_FR1_XYZ_OR_SKIP(dir);
   const TrajectoryEvaluation ev =
@@ -306,8 +306,8 @@ TEST(WholeRun, TumFr1XyzAtQuarterRate) {
 
 // 5 Hz (every 6th frame, up to 12 cm between frames): where the hand reverses, the
 // constant-velocity guess lands centimetres off, the pairs that fix the motion fall outside the
-// gates (frame 76: 2 116 pairs against 4 868 on the frame before) and the planes left look like a
-// degenerate view, held at a velocity the hand has already reversed. Such a frame is registered
+// gates (frame 76: 2 116 pairs against 4 868 on the last fully constrained frame) and the planes
+// left look like a degenerate view, held at a velocity the hand has already reversed. Such a frame is registered
 // once more from the previous pose (retry_pairs_below, 0.6) and keeps that result when it fixes
 // every direction with 1.5x the pairs (frame 76: 5 953 pairs, none held). Measured 2026-12-05:
 // 0.0176 m; 0.2257 m with the retry off, every frame "tracked" (the run without it is asserted
