@@ -458,6 +458,21 @@ TEST(EvaluateBagTum, TeddyAteMatchesEvalTrajAndTrackSequence) {
   }
 }
 
+// The bag the repository ships (the first 14 frames of XTest1_05_Chair, L515 noise, 0.25 mm per
+// unit) is evaluated with no flags: its camera connections carry the unit (depth_scale_m), as
+// every generated scenario bag's do. Before they did (until 2026-12-05) evaluate_bag read it as
+// millimetres, four times too near, and tracked 0 of 14 frames.
+TEST(EvaluateBagSample, TheShippedSampleTracksWithoutFlags) {
+  TmpDir out;
+  const std::string bag = std::string(DT_SOURCE_DIR) + "/../bags/sample_xtest1_05_chair.bag";
+  const ToolRun r = evaluate(bag + " --out-dir " + out.path, out.path);
+  ASSERT_EQ(r.rc, 0) << r.output;
+  const Summary s = lastLine(r.output);
+  EXPECT_EQ(s.frames, 14);
+  EXPECT_EQ(s.tracked, 14);
+  EXPECT_LT(std::stod(s.ate), 0.001) << r.output;
+}
+
 // The teddy frames written in the 7-Scenes layout (millimetre PNGs with 65535 where there is no
 // return, one 4x4 camera-to-world pose file per frame, camera-intrinsics.txt, in data/), as a
 // user with a 7-Scenes sequence has them: track_sequence and tum_to_bag read the folder with no
