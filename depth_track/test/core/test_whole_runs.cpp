@@ -308,7 +308,7 @@ TEST(WholeRun, TumFr1XyzAtQuarterRate) {
 // constant-velocity guess lands centimetres off, the pairs that fix the motion fall outside the
 // gates (frame 76: 2 116 pairs against 4 868 on the last fully constrained frame) and the planes
 // left look like a degenerate view, held at a velocity the hand has already reversed. Such a frame is registered
-// once more from the previous pose (retry_pairs_below, 0.6) and keeps that result when it fixes
+// once more from the previous pose (retry_pairs_below, 0.9) and keeps that result when it fixes
 // every direction with 1.5x the pairs (frame 76: 5 953 pairs, none held). Measured 2026-12-05:
 // 0.0176 m; 0.2257 m with the retry off, every frame "tracked" (the run without it is asserted
 // to fail, so the bound is the retry's doing). At 30 Hz the retry never fires on fr1/xyz or

@@ -80,7 +80,7 @@ struct CellOdometryConfig {
   /// constant-velocity guess centimetres off: the pairs that fix the motion fall outside the
   /// gates, and the planes that remain look like a degenerate view. A view that is degenerate
   /// stays so from any guess and keeps the first result. 0 = off.
-  double retry_pairs_below = 0.6;
+  double retry_pairs_below = 0.9;
   RelocaliseConfig relocalise;
   /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
   /// cells replaced by the model's planes where it is confident (SurfaceModel).
