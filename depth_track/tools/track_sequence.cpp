@@ -24,7 +24,7 @@
 #include "depth_track/core/tracker_params.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "tracking_options.hpp"
-#include "tum_cameras.hpp"
+#include "sequence_intrinsics.hpp"
 
 using namespace depth_track;
 
@@ -112,8 +112,9 @@ int main(int argc, char** argv) {
   tool_options::addIntrinsicsOptions(app, intrinsics,
                                      "a sequence without an intrinsics file; override it");
   std::string tum_camera;
-  app.add_option("--camera", tum_camera,
-                 "a TUM sequence's camera: fr1 | fr2 | fr3 (the published calibration)");
+  auto* camera_opt = app.add_option(
+      "--camera", tum_camera, "a TUM sequence's camera: fr1 | fr2 | fr3 (the published calibration)");
+  for (const char* name : {"--fx", "--fy", "--cx", "--cy"}) app.get_option(name)->excludes(camera_opt);
   auto* scale_opt = app.add_option(
       "--depth-scale", depth_scale,
       "metres per 16-bit depth unit (default: the sequence's own: TUM 0.0002 = 1/5000, 7-Scenes "
@@ -159,23 +160,12 @@ int main(int argc, char** argv) {
     const SequenceSource* recorded = nullptr;
     if (!tum_dir.empty()) {
       DepthSequence seq = readDepthSequence(tum_dir);
-      PinholeIntrinsics K;
-      std::string k_from;
-      if (intrinsics.given()) {
-        K = intrinsics.intrinsics(), k_from = "--fx --fy --cx --cy";
-      } else if (!tum_camera.empty()) {
-        const auto k = tumIntrinsics(tum_camera);
-        if (!k) throw std::invalid_argument("--camera '" + tum_camera + "': expected fr1, fr2 or fr3");
-        K = *k, k_from = "--camera " + tum_camera;
-      } else if (seq.intrinsics) {
-        K = *seq.intrinsics, k_from = seq.intrinsics_source;
-      } else {
-        const std::string hint = tumCameraHint(std::filesystem::absolute(tum_dir).string());
-        throw std::invalid_argument(
-            tum_dir + " (" + seq.layout + ") has no intrinsics file: give --camera fr1|fr2|fr3 " +
-            "or --fx --fy --cx --cy" +
-            (hint.empty() ? "" : " (the folder's name points at --camera " + hint + ")"));
-      }
+      IntrinsicsFlags flags{intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, 0};
+      for (const char* name : {"--fx", "--fy", "--cx", "--cy"})
+        flags.given += app.get_option(name)->count() > 0;
+      const ChosenIntrinsics chosen = chooseIntrinsics(seq, tum_dir, tum_camera, flags);
+      const PinholeIntrinsics& K = chosen.K;
+      const std::string& k_from = chosen.source;
       const double scale = scale_opt->count() > 0 ? depth_scale : seq.depth_scale_m;
       std::printf("sequence: %s, %zu frames, %s ground truth; intrinsics fx=%.2f fy=%.2f "
                   "cx=%.2f cy=%.2f from %s; depth unit %g m%s\n",

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <string>
@@ -324,7 +325,8 @@ namespace {
 // A fresh folder under the test's temp dir.
 std::string freshDir(const std::string& name) {
   const std::string d = tempDir() + "/" + name;
-  std::system(("rm -rf '" + d + "' && mkdir -p '" + d + "'").c_str());
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
   return d;
 }
 
@@ -351,7 +353,7 @@ std::string poseText(double tx, double ty, double tz, double yaw_rad) {
 TEST(DepthSequence, SevenScenesLayoutFramesPosesIntrinsicsAndUnit) {
   const std::string root = freshDir("seq7");
   const std::string d = root + "/data";  // the layout's data/ subfolder is found too
-  std::system(("mkdir -p '" + d + "'").c_str());
+  std::filesystem::create_directories(d);
   // Written out of order: the frames are taken in file-name order, stamped i / 30 s.
   for (int i : {2, 0, 1}) {
     char name[64];
@@ -441,7 +443,7 @@ TEST(DepthSequence, SevenScenesErrorsNameTheFile) {
 
 TEST(DepthSequence, TumLayoutWithAndWithoutIntrinsicsFile) {
   const std::string d = freshDir("seqtum");
-  std::system(("mkdir -p '" + d + "/depth'").c_str());
+  std::filesystem::create_directories(d + "/depth");
   writeSevenScenesDepth(d + "/depth/1.png", 5000);
   writeSevenScenesDepth(d + "/depth/2.png", 5000);
   writeText(d + "/depth.txt", "# depth maps\n100.5 depth/1.png\n100.6 depth/2.png\n");

@@ -473,6 +473,26 @@ TEST(EvaluateBagSample, TheShippedSampleTracksWithoutFlags) {
   EXPECT_LT(std::stod(s.ate), 0.001) << r.output;
 }
 
+// track_sequence chooses a recorded folder's intrinsics as tum_to_bag does (one function,
+// sequence_intrinsics.hpp): some but not all of --fx --fy --cx --cy are refused (before
+// 2026-12-05 --fx and --fy alone were taken, with cx = cy = 0), a TUM folder without a file needs
+// a camera and the error names the one its name points at, an unknown camera is named.
+TEST(TrackSequenceIntrinsics, RefusedAsTumToBagRefusesThem) {
+  TmpDir out;
+  DT_TEDDY_OR_SKIP(teddy);
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {" --fx 535.4 --fy 539.2", "--fx --fy --cx --cy go together"},
+      {"", "has no intrinsics file): give --camera fr1|fr2|fr3 or all of --fx --fy --cx --cy"},
+      {"", "looks like a fr3 sequence: --camera fr3"},
+      {" --camera fr4", "--camera 'fr4': expected fr1, fr2 or fr3"}};
+  for (const auto& [args, message] : cases) {
+    const ToolRun r = tool_test::runTool(TRACK_SEQUENCE, "--tum " + teddy + args, out.path);
+    EXPECT_EQ(r.rc, 2) << args << "\n" << r.output;
+    EXPECT_NE(r.output.find(message), std::string::npos) << args << "\n" << r.output;
+    EXPECT_EQ(r.output.find("frames="), std::string::npos) << "tracked anyway: " << r.output;
+  }
+}
+
 // The teddy frames written in the 7-Scenes layout (millimetre PNGs with 65535 where there is no
 // return, one 4x4 camera-to-world pose file per frame, camera-intrinsics.txt, in data/), as a
 // user with a 7-Scenes sequence has them: track_sequence and tum_to_bag read the folder with no

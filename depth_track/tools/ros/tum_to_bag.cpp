@@ -23,7 +23,7 @@
 #include <iostream>
 #include <sstream>
 
-#include "../tum_cameras.hpp"
+#include "../sequence_intrinsics.hpp"
 #include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "tum_bag.hpp"
@@ -47,13 +47,6 @@ std::string fmt(double v) {
   return s.str();
 }
 
-// The camera the folder's depth.txt header or name points at, for the hint in an error message.
-std::string cameraHint(const std::string& dir) {
-  std::ifstream in(dir + "/depth.txt");
-  std::string line, text = fs::absolute(dir).string();
-  for (int i = 0; i < 5 && std::getline(in, line); ++i) text += " " + line;
-  return tumCameraHint(text);
-}
 
 // Fails unless stamps increase strictly: a reader pairs frames and poses by time.
 template <class Items, class StampOf, class Describe>
@@ -128,26 +121,15 @@ int run(int argc, char** argv) {
   if (!fs::is_directory(dir, ec))
     throw UsageError(dir + ": " + (fs::exists(dir, ec) ? "not a folder" : "no such folder"));
   DepthSequence seq = readDepthSequence(dir);
+  const IntrinsicsFlags flags{
+      fx, fy, cx, cy,
+      static_cast<int>(std::count_if(k_opts.begin(), k_opts.end(),
+                                     [](const CLI::Option* o) { return o->count() > 0; }))};
   PinholeIntrinsics K;
-  const int k_given = static_cast<int>(std::count_if(
-      k_opts.begin(), k_opts.end(), [](const CLI::Option* o) { return o->count() > 0; }));
-  if (!camera.empty()) {
-    const auto k = tumIntrinsics(camera);
-    if (!k) throw UsageError("--camera '" + camera + "': expected fr1, fr2 or fr3");
-    K = *k;
-  } else if (k_given == 4) {
-    K.fx = fx, K.fy = fy, K.cx = cx, K.cy = cy;
-  } else if (k_given == 0 && seq.intrinsics) {
-    K = *seq.intrinsics;
-  } else {
-    const std::string hint = cameraHint(dir);
-    throw UsageError(
-        std::string(k_given == 0 ? "no intrinsics (" + dir + " has no intrinsics file): "
-                                 : "--fx --fy --cx --cy go together: ") +
-        "give --camera fr1|fr2|fr3 or all of --fx --fy --cx --cy" +
-        (hint.empty()
-             ? ""
-             : " (" + dir + " looks like a " + hint + " sequence: --camera " + hint + ")"));
+  try {
+    K = chooseIntrinsics(seq, dir, camera, flags).K;
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(e.what());
   }
   if (scale_opt->count() == 0) depth_scale = seq.depth_scale_m;
   if (!(depth_scale > 0.0 && depth_scale <= 1.0))
