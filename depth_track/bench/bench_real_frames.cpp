@@ -18,9 +18,9 @@
 #include <vector>
 
 #include "../test/shared_data_paths.hpp"
-#include "../tools/tum_cameras.hpp"
 #include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/tracker.hpp"
+#include "depth_track/core/tum_cameras.hpp"
 #include "depth_track/core/tum_io.hpp"
 
 using namespace depth_track;

@@ -3,13 +3,11 @@
 /// such folders (track_sequence, tum_to_bag): --camera fr1|fr2|fr3 (TUM's published
 /// calibrations), or all four of --fx --fy --cx --cy, or else the folder's own intrinsics file
 /// (DepthSequence::intrinsics). Header-only, ROS-free.
-#include <filesystem>
-#include <fstream>
 #include <stdexcept>
 #include <string>
 
+#include "depth_track/core/tum_cameras.hpp"
 #include "depth_track/core/tum_io.hpp"
-#include "tum_cameras.hpp"
 
 namespace depth_track {
 
@@ -23,15 +21,6 @@ struct ChosenIntrinsics {
   PinholeIntrinsics K;  ///< image size 0 x 0: the caller takes it from the frames
   std::string source;   ///< where K came from, for the tools' first line
 };
-
-/// The camera a folder's name or its depth.txt header points at ("fr3"), or "": a hint only.
-inline std::string folderCameraHint(const std::string& dir) {
-  std::ifstream in(dir + "/depth.txt");
-  std::error_code ec;
-  std::string line, text = std::filesystem::absolute(dir, ec).string();
-  for (int i = 0; i < 5 && std::getline(in, line); ++i) text += " " + line;
-  return tumCameraHint(text);
-}
 
 /// Throws std::invalid_argument for an unknown --camera, some but not all of --fx --fy --cx
 /// --cy, or none given for a folder without an intrinsics file (naming the camera the folder

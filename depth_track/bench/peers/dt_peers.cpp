@@ -28,11 +28,11 @@
 #include <optional>
 #include <sstream>
 
-#include "../../tools/tum_cameras.hpp"
 #include "depth_track/core/evaluation.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tracker_params.hpp"
+#include "depth_track/core/tum_cameras.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "peers.hpp"
 

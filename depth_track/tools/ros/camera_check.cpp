@@ -30,9 +30,9 @@
 #include <string>
 #include <vector>
 
-#include "../tum_cameras.hpp"
 #include "depth_track/core/camera_check.hpp"
 #include "depth_track/core/sim/noise.hpp"
+#include "depth_track/core/tum_cameras.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "depth_track/ros/conversions.hpp"
 #include "tum_bag.hpp"

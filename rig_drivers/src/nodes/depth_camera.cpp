@@ -25,6 +25,7 @@
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -35,6 +36,7 @@
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/sim/scene.hpp"
+#include "depth_track/core/tum_cameras.hpp"
 #include "depth_track/core/tum_io.hpp"
 
 namespace dt = depth_track;
@@ -260,12 +262,16 @@ class SimBackend : public Backend {
 // ---- tum ------------------------------------------------------------------------------------
 class TumBackend : public Backend {
  public:
-  // The folder's own intrinsics file (intrinsics.txt, camera-intrinsics.txt, or 7-Scenes'
-  // published calibration) replaces `K`, its image size taken from the first frame; scale_m <= 0
-  // takes the folder's unit. Stamps that begin before 1 s (7-Scenes: frame i at i / 30 s) are
-  // published 1 s later: a stamp of 0 reads as "the latest" to a tf lookup.
-  TumBackend(const std::string& folder, const dt::PinholeIntrinsics& K, double scale_m,
-             const dt::DepthRange& range, bool loop, bool file_stamps)
+  // The intrinsics, by `camera` (~tum_camera): "fr1" | "fr2" | "fr3" the TUM benchmark's
+  // published calibration; "params" the given `K` (~fx..~cy, ~width, ~height); "" the folder's own
+  // intrinsics file (intrinsics.txt, camera-intrinsics.txt, or 7-Scenes' published calibration),
+  // else, for a folder whose name or depth.txt points at a TUM camera, an error naming it (the
+  // ~fx..~cy defaults are another camera's), else `K` with a warning. The image size of the
+  // first two comes from the first frame. scale_m <= 0 takes the folder's unit. Stamps that begin
+  // before 1 s (7-Scenes: frame i at i / 30 s) are published 1 s later: a stamp of 0 reads as
+  // "the latest" to a tf lookup.
+  TumBackend(const std::string& folder, const std::string& camera, const dt::PinholeIntrinsics& K,
+             double scale_m, const dt::DepthRange& range, bool loop, bool file_stamps)
       : seq_(dt::readDepthSequence(folder)),
         K_(K),
         scale_(scale_m > 0.0 ? scale_m : seq_.depth_scale_m),
@@ -273,20 +279,40 @@ class TumBackend : public Backend {
         loop_(loop),
         file_stamps_(file_stamps) {
     if (seq_.frames.empty()) throw std::runtime_error("tum backend: " + seq_.frames_source + " lists no frames");
-    if (seq_.intrinsics) {
-      K_ = *seq_.intrinsics;
+    std::string source = "~fx ~fy ~cx ~cy (~tum_camera params)";
+    std::optional<dt::PinholeIntrinsics> chosen;
+    if (camera == "params") {
+      // K as given
+    } else if (!camera.empty()) {
+      chosen = dt::tumIntrinsics(camera);  // the name was validated with the parameters
+      source = "~tum_camera " + camera + " (the TUM benchmark's published calibration)";
+    } else if (seq_.intrinsics) {
+      chosen = seq_.intrinsics;
+      source = seq_.intrinsics_source;
+    } else if (const std::string hint = dt::folderCameraHint(folder); !hint.empty()) {
+      throw std::runtime_error(
+          "tum backend: " + folder + " has no intrinsics file and looks like a TUM " + hint +
+          " sequence: set ~tum_camera " + hint + " (its published calibration), or ~tum_camera "
+          "params to play it with ~fx ~fy ~cx ~cy (now fx=" + std::to_string(K.fx) + ")");
+    } else {
+      source = "~fx ~fy ~cx ~cy (the folder has no intrinsics file)";
+      ROS_WARN("depth_camera: %s has no intrinsics file and ~tum_camera is empty: playing it with "
+               "~fx=%.2f ~fy=%.2f ~cx=%.2f ~cy=%.2f; set ~tum_camera (fr1, fr2, fr3) or write an "
+               "intrinsics.txt (docs/formats.md) if these are not its camera's",
+               folder.c_str(), K.fx, K.fy, K.cx, K.cy);
+    }
+    if (chosen) {
+      K_ = *chosen;
       dt::readPng16(seq_.frames.front().path, &K_.width, &K_.height);
       const auto problems = K_.validate();
       if (!problems.empty())
-        throw std::runtime_error("tum backend: " + seq_.intrinsics_source + ": " +
-                                 dt::joinProblems(problems));
+        throw std::runtime_error("tum backend: " + source + ": " + dt::joinProblems(problems));
     }
     if (seq_.frames.front().stamp_s < 1.0) stamp_offset_s_ = 1.0;
     ROS_INFO("depth_camera: %s folder %s, %zu frames, intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f "
              "%dx%d from %s, %g m per unit%s",
              seq_.layout.c_str(), folder.c_str(), seq_.frames.size(), K_.fx, K_.fy, K_.cx, K_.cy,
-             K_.width, K_.height,
-             seq_.intrinsics ? seq_.intrinsics_source.c_str() : "~fx ~fy ~cx ~cy", scale_,
+             K_.width, K_.height, source.c_str(), scale_,
              stamp_offset_s_ > 0.0 && file_stamps_ ? "; stamps 1 s later than the files'" : "");
   }
   bool grab(Grab* out, std::string* why) override {
@@ -335,7 +361,7 @@ class DepthCameraNode {
  public:
   bool init() {
     ros::NodeHandle nh, pnh("~");
-    std::string backend, noise, scene, pose_topic, device, tum_folder;
+    std::string backend, noise, scene, pose_topic, device, tum_folder, tum_camera;
     double fx, fy, cx, cy, min_m, max_m, device_scale_m, tum_scale_m;
     int width, height, seed;
     bool loop, file_stamps;
@@ -367,6 +393,7 @@ class DepthCameraNode {
     pnh.param("pose_wait_s", pose_wait_s, 2.0);
     pnh.param<std::string>("tum_folder", tum_folder, "");
     pnh.param("tum_depth_scale_m", tum_scale_m, 0.0);
+    pnh.param<std::string>("tum_camera", tum_camera, "");
     pnh.param("loop", loop, false);
     pnh.param("use_file_stamps", file_stamps, true);
 
@@ -389,6 +416,9 @@ class DepthCameraNode {
     else if (max_m / out_scale_m_ > 65535)
       problems.push_back("~max_depth_m / ~depth_scale_m exceeds the 16-bit range");
     if (backend == "tum" && tum_folder.empty()) problems.push_back("~tum_folder is required");
+    if (!tum_camera.empty() && tum_camera != "params" && !dt::tumIntrinsics(tum_camera))
+      problems.push_back("~tum_camera '" + tum_camera +
+                         "' unknown (empty = the folder's intrinsics file, fr1, fr2, fr3, params)");
     if (!(tum_scale_m >= 0.0 && tum_scale_m <= 1.0))
       problems.push_back("~tum_depth_scale_m must be in [0, 1] m per unit (0 = the folder's own)");
     if (!static_pose.empty() && static_pose.size() != 7)
@@ -417,7 +447,8 @@ class DepthCameraNode {
                                          pose_wait_s, static_cast<std::uint64_t>(seed), range);
       } else {
         backend_ =
-            std::make_unique<TumBackend>(tum_folder, K, tum_scale_m, range, loop, file_stamps);
+            std::make_unique<TumBackend>(tum_folder, tum_camera, K, tum_scale_m, range, loop,
+                                         file_stamps);
       }
     } catch (const std::exception& e) {
       ROS_FATAL("depth_camera: %s", e.what());
@@ -426,7 +457,8 @@ class DepthCameraNode {
     image_pub_ = nh.advertise<sensor_msgs::Image>("image_rect", 5);
     info_pub_ = nh.advertise<sensor_msgs::CameraInfo>("camera_info", 5);
     trigger_srv_ = pnh.advertiseService("trigger", &DepthCameraNode::onTrigger, this);
-    ROS_INFO("depth_camera: %s backend, %dx%d, %s, frame_id %s", backend.c_str(), width, height,
+    ROS_INFO("depth_camera: %s backend, %dx%d, %s, frame_id %s", backend.c_str(),
+             backend_->intrinsics().width, backend_->intrinsics().height,
              triggered_ ? "one frame per ~trigger" : "continuous", frame_id_.c_str());
     return true;
   }

@@ -8,7 +8,12 @@ the node reads it. It publishes one frame per ~trigger call. Checked: the intrin
 folder's camera-intrinsics.txt, not from ~fx..~cy; the image size from the frames; millimetres are
 published as they are (~depth_scale_m 1 mm), 65535 and readings outside ~min/max_depth_m as 0;
 the stamps are the files' (frame i at i / 30 s) 1 s later, since a stamp of 0 means "latest" to
-tf. A folder with a malformed pose file stops the node with the file and line named."""
+tf. A folder with a malformed pose file stops the node with the file and line named.
+
+A TUM-layout folder without an intrinsics file (~tum_camera): its name pointing at a Freiburg
+camera, the node refuses to play it with ~fx..~cy and names the camera; ~tum_camera fr1 plays it
+with the published fr1 calibration (size from the frames), ~tum_camera params with ~fx..~cy; an
+unknown ~tum_camera is refused by name."""
 import os
 import shutil
 import struct
@@ -68,13 +73,44 @@ def make_folder(root, bad_pose_line=None):
     return root
 
 
-def start_node(ns, folder):
+def make_tum_folder(root):
+    """A TUM RGB-D layout folder without intrinsics.txt: depth.txt and two 640x480 16-bit PNGs in
+    1/5000 m (the size of the published calibrations, whose principal points must lie inside)."""
+    os.makedirs(os.path.join(root, "depth"))
+    with open(os.path.join(root, "depth.txt"), "w") as f:
+        f.write("# depth maps\n# timestamp filename\n")
+        for i in range(2):
+            name = "depth/%d.png" % i
+            write_png16(os.path.join(root, name), [[5000 + 5 * i] * 640 for _ in range(480)])
+            f.write("%.6f %s\n" % (1305031102.0 + i / 30.0, name))
+    return root
+
+
+def start_node(ns, folder, *extra):
     # ~fx..~cy set to something else: the folder's own file must win.
     return subprocess.Popen(
         ["rosrun", "rig_drivers", "depth_camera", "__name:=depth_camera", "__ns:=" + ns,
          "_backend:=tum", "_tum_folder:=" + folder, "_triggered:=true",
-         "_fx:=458.0", "_fy:=458.0", "_cx:=320.0", "_cy:=240.0"],
+         "_fx:=458.0", "_fy:=458.0", "_cx:=320.0", "_cy:=240.0"] + list(extra),
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def first_info(ns, node):
+    """The camera_info of the first triggered frame of the node started in namespace ns."""
+    infos = []
+    rospy.Subscriber(ns + "/camera_info", CameraInfo, infos.append, queue_size=10)
+    try:
+        rospy.wait_for_service(ns + "/depth_camera/trigger", timeout=30)
+        trigger = rospy.ServiceProxy(ns + "/depth_camera/trigger", Trigger)
+        time.sleep(1.0)  # the subscription connects
+        deadline = time.time() + 10
+        while time.time() < deadline and not infos:
+            trigger()
+            time.sleep(0.2)
+    finally:
+        node.terminate()
+        node.wait(timeout=10)
+    return infos[0] if infos else None
 
 
 class DepthCameraFolder(unittest.TestCase):
@@ -143,6 +179,30 @@ class DepthCameraFolder(unittest.TestCase):
         self.assertNotEqual(node.returncode, 0, out)
         self.assertIn("frame-000001.pose.txt:2:", out)
         self.assertIn("'zero' is not a finite number", out)
+
+    def test_a_tum_folder_named_for_a_camera_needs_its_calibration(self):
+        folder = make_tum_folder(os.path.join(self.tmp, "rgbd_dataset_freiburg1_xyz"))
+        node = start_node("/tumref", folder)
+        out, _ = node.communicate(timeout=30)
+        self.assertNotEqual(node.returncode, 0, out)
+        self.assertIn("has no intrinsics file and looks like a TUM fr1 sequence", out)
+        self.assertIn("set ~tum_camera fr1", out)
+
+        info = first_info("/tumfr1", start_node("/tumfr1", folder, "_tum_camera:=fr1"))
+        self.assertIsNotNone(info)
+        self.assertEqual((info.width, info.height), (640, 480))
+        self.assertEqual(list(info.K), [517.3, 0, 318.6, 0, 516.5, 255.3, 0, 0, 1])
+
+        info = first_info("/tumpar", start_node("/tumpar", folder, "_tum_camera:=params"))
+        self.assertIsNotNone(info)
+        self.assertEqual(list(info.K), [458.0, 0, 320.0, 0, 458.0, 240.0, 0, 0, 1])
+
+    def test_an_unknown_tum_camera_is_refused(self):
+        folder = make_tum_folder(os.path.join(self.tmp, "plain"))
+        node = start_node("/tumbad", folder, "_tum_camera:=fr4")
+        out, _ = node.communicate(timeout=30)
+        self.assertNotEqual(node.returncode, 0, out)
+        self.assertIn("~tum_camera 'fr4' unknown", out)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 #pragma once
 /// The TUM RGB-D benchmark's published Kinect calibrations (Freiburg 1, 2, 3) and its depth unit,
-/// for the tools that read TUM folders (tum_to_bag, the peer benchmarks). The benchmark registers
-/// its depth images to the colour camera, so these are the colour camera's intrinsics. Header-only,
-/// ROS-free, thread-safe.
+/// for what reads TUM folders (track_sequence, tum_to_bag, the depth_camera node's tum backend,
+/// the peer benchmarks). The benchmark registers its depth images to the colour camera, so these
+/// are the colour camera's intrinsics. Header-only, ROS-free, thread-safe.
 #include <array>
+#include <filesystem>
+#include <fstream>
 #include <optional>
 #include <string>
 
@@ -50,6 +52,15 @@ inline std::string tumCameraHint(const std::string& text) {
   if (at == std::string::npos || at + 8 >= text.size()) return "";
   const char digit = text[at + 8];
   return digit >= '1' && digit <= '3' ? std::string("fr") + digit : "";
+}
+
+/// The camera a folder's name or its depth.txt header points at ("fr3"), or "": a hint only.
+inline std::string folderCameraHint(const std::string& dir) {
+  std::ifstream in(dir + "/depth.txt");
+  std::error_code ec;
+  std::string line, text = std::filesystem::absolute(dir, ec).string();
+  for (int i = 0; i < 5 && std::getline(in, line); ++i) text += " " + line;
+  return tumCameraHint(text);
 }
 
 }  // namespace depth_track
