@@ -24,11 +24,11 @@ double weakestInformation(const DegeneracyAnalysis& a) {
 // acceleration of ~2 m/s^2, which a hand or a rig starting to move can reach unannounced; a
 // camera at rest must not earn a prior that its first move then breaks.
 constexpr double kMinPriorSigmaM = 0.002;
+// ... and a prior that has not yet predicted any frame is worth little (1 cm per frame).
+constexpr double kUntestedPriorSigmaM = 0.01;
 // A retry from the previous pose replaces the first registration only with this many times its
 // pairs (CellOdometryConfig::retry_pairs_below).
 constexpr double kRetryPairsGain = 1.5;
-// ... and a prior that has not yet predicted any frame is worth little (1 cm per frame).
-constexpr double kUntestedPriorSigmaM = 0.01;
 }  // namespace
 
 std::vector<std::string> RelocaliseConfig::validate() const {

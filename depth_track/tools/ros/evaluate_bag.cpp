@@ -127,6 +127,8 @@ struct FrameRecord {
   bool keyframe = false, loop_attempted = false, loop_accepted = false;
   int held_directions = 0;  ///< directions the view did not fix, kept at the motion guess
   bool prior = false;       ///< --motion-prior gave this frame's guess
+  bool retried = false;     ///< registered again from the previous pose (retry_pairs_below)
+  bool retry_kept = false;  ///< ... and that registration kept
   double ms_decode = 0, ms_prefilter = 0, ms_reduce = 0, ms_register = 0, ms_track = 0, ms_map = 0;
   double cpu_ms = 0;  ///< process CPU time of tracking + mapping (all threads)
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
@@ -161,8 +163,8 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
                           "errRy", "errRz", "errDx", "errDy", "errDz"})
       out << "," << p << "_" << c;
   out << ",icp_error_mm,cells,matches,fm_matches,iterations,keyframe,loop_attempted,loop_accepted,"
-         "held_directions,prior,ms_decode,ms_prefilter,ms_reduce,ms_register,ms_track,ms_map,"
-         "ms_frame,cpu_ms,failure\n";
+         "held_directions,prior,retried,retry_kept,ms_decode,ms_prefilter,ms_reduce,ms_register,"
+         "ms_track,ms_map,ms_frame,cpu_ms,failure\n";
   // Per reference: frame index -> its row of errors.
   std::vector<std::vector<const FrameError*>> by_frame(
       run.scores.size(), std::vector<const FrameError*>(frames.size()));
@@ -197,11 +199,11 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
     }
     std::snprintf(
         buf, sizeof(buf),
-        ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
+        ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
         1000.0 * f.error_rms_m, f.cells, f.matches, f.fm_matches, f.iterations, f.keyframe ? 1 : 0,
         f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.held_directions, f.prior ? 1 : 0,
-        f.ms_decode, f.ms_prefilter, f.ms_reduce, f.ms_register, f.ms_track, f.ms_map,
-        f.ms_track + f.ms_map, f.cpu_ms);
+        f.retried ? 1 : 0, f.retry_kept ? 1 : 0, f.ms_decode, f.ms_prefilter, f.ms_reduce,
+        f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map, f.cpu_ms);
     out << buf << csvText(f.failure) << "\n";
   }
 }
@@ -608,6 +610,7 @@ int main(int argc, char** argv) {
           f.keyframe = st.new_keyframe;
           f.held_directions = st.degenerate_directions;
           f.prior = prior.has_value();
+          f.retried = st.retried, f.retry_kept = st.retry_kept;
           f.ms_prefilter = st.ms_prefilter, f.ms_reduce = st.ms_reduce;
           f.ms_register = st.ms_register, f.ms_track = st.ms_total;
           f.T_W_C = st.T_W_C;
@@ -651,12 +654,14 @@ int main(int argc, char** argv) {
               "%zu frames before it; if the bag was cut short, `rosbag reindex %s` "
               "recovers its complete chunks",
               message, read_error.c_str(), frames.size(), bag_path.c_str()));
+    const auto frames_with = [&](bool FrameRecord::*flag) {
+      return static_cast<std::size_t>(std::count_if(
+          frames.begin(), frames.end(), [&](const FrameRecord& f) { return f.*flag; }));
+    };
     if (sensor_prior)
       report.line(fmt("motion prior: the sensors' motion guided %zu of %zu frames (the others, the "
                       "first and any outside the sensor streams, the constant-velocity guess)",
-                      static_cast<std::size_t>(std::count_if(
-                          frames.begin(), frames.end(), [](const FrameRecord& f) { return f.prior; })),
-                      frames.size()));
+                      frames_with(&FrameRecord::prior), frames.size()));
     if (out_of_order > 0)
       report.line(
           fmt("note: %zu frames skipped because their stamps go back in time (first: "
@@ -688,6 +693,10 @@ int main(int argc, char** argv) {
     }
     for (const auto& [reason, n] : failures)
       report.line(fmt("flagged %d frames: %s", n, reason.c_str()));
+    if (const std::size_t retried = frames_with(&FrameRecord::retried); retried > 0)
+      report.line(fmt("registered again from the previous pose: %zu frames, %zu kept "
+                      "(retry_pairs_below; frames.csv: retried, retry_kept)",
+                      retried, frames_with(&FrameRecord::retry_kept)));
 
     const RunEvaluation run = evaluateRun(est, refs, eval_options);
     report.line(formatRunEvaluation(run));
