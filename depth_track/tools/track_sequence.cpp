@@ -210,8 +210,8 @@ int main(int argc, char** argv) {
       std::fprintf(
           status,
           "stamp_s,tracked,cells,candidates,matches,fm_matches,duplicates_broken,iterations,"
-          "error_rms_m,degenerate,weakest_information,new_keyframe,ms_prefilter,ms_reduce,"
-          "ms_register,ms_total,failure\n");
+          "error_rms_m,degenerate,weakest_information,unconfirmed,probe_spread_m,new_keyframe,"
+          "ms_prefilter,ms_reduce,ms_register,ms_total,failure\n");
     }
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
@@ -231,6 +231,7 @@ int main(int argc, char** argv) {
     int tracked = 0, bad_frames = 0;
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
     int retried = 0, retry_kept = 0;             // registered again from the previous pose
+    int probed = 0, unconfirmed = 0;             // the basin probe
     std::map<std::string, int> failures;
     long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
     for (std::size_t i = 0; i < n; ++i) {
@@ -254,6 +255,8 @@ int main(int argc, char** argv) {
           refined_cells += st.model.refined;
           retried += st.retried;
           retry_kept += st.retry_kept;
+          probed += st.basin_probed;
+          unconfirmed += st.unconfirmed_directions > 0;
           if (mapper) {
             // Accepted corrections move the tracker (its world is the map frame), which keeps
             // this tool's trajectories as they were; the graph keeps the tracker in odom and a
@@ -304,10 +307,11 @@ int main(int argc, char** argv) {
       }
       if (status)
         std::fprintf(status,
-                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
+                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.5f,%d,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
                      st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
-                     st.weakest_information, st.new_keyframe, st.ms_prefilter, st.ms_reduce,
+                     st.weakest_information, st.unconfirmed_directions, st.probe_spread_m,
+                     st.new_keyframe, st.ms_prefilter, st.ms_reduce,
                      st.ms_register, st.ms_total, st.failure.c_str());
     }
     if (status) std::fclose(status);
@@ -341,6 +345,10 @@ int main(int argc, char** argv) {
     if (retried > 0)
       std::printf("registered again from the previous pose: %d frames, %d kept (retry_pairs_below)\n",
                   retried, retry_kept);
+    if (probed > 0)
+      std::printf("basin probe: %d frames probed, %d flagged unconfirmed (a direction the view "
+                  "does not fix, the pose kept; basin_probe_below)\n",
+                  probed, unconfirmed);
     if (tracker.noiseCalibration())
       std::printf("noise: %s\n", tracker.noiseCalibration()->summary.c_str());
     const CellCloud& cells = tracker.lastCells();

@@ -66,6 +66,12 @@ std::vector<std::string> CellOdometryConfig::validate() const {
     p.push_back("velocity_firm_information must be >= 0 (0 = every frame counts)");
   if (!(retry_pairs_below >= 0.0 && retry_pairs_below <= 1.0))
     p.push_back("retry_pairs_below must lie in [0, 1] (0 = off)");
+  if (!(basin_probe_below >= 0.0 && basin_probe_below <= 1000.0))
+    p.push_back("basin_probe_below must lie in [0, 1000] (0 = off)");
+  if (!(basin_probe_step_m > 0.0 && basin_probe_step_m <= 0.1))
+    p.push_back("basin_probe_step must lie in (0, 0.1] m");
+  if (!(basin_probe_tolerance_m > 0.0 && basin_probe_tolerance_m < basin_probe_step_m))
+    p.push_back("basin_probe_tolerance must lie in (0, basin_probe_step) m");
   for (const auto& s : relocalise.validate()) p.push_back(s);
   for (const auto& s : model.validate()) p.push_back(s);
   return p;
@@ -271,6 +277,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   else if (last_held_ && reg_config.degeneracy.noise_margin > 0.0)
     reg_config.degeneracy.noise_margin = reg_config.degeneracy.release_margin;
   RegistrationResult reg;
+  Eigen::Vector3d probe_dir = Eigen::Vector3d::Zero();  // the basin probe's direction
   if (st.cells < config_.registration.min_matches) {
     std::ostringstream s;
     s << "frame has only " << st.cells << " usable cells (min_matches "
@@ -309,6 +316,28 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         st.retry_kept = true;
       }
     }
+    // The basin probe (CellOdometryConfig::basin_probe_below): a flag, the result stays.
+    if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking &&
+        reg.failure.empty() && reg.degeneracy.degenerate == 0 && reg.matches > 0 &&
+        weakestInformation(reg.degeneracy) < config_.basin_probe_below) {
+      probe_dir = reg.degeneracy.weakest.tail<3>();
+      if (probe_dir.norm() > 0.5) {  // mostly a translation
+        probe_dir.normalize();
+        st.basin_probed = true;
+        for (const double side : {1.0, -1.0}) {
+          if (st.probe_spread_m > config_.basin_probe_tolerance_m) break;  // one side says it
+          Eigen::Isometry3d from = reg.T_ref_cur;
+          from.translation() += side * config_.basin_probe_step_m * probe_dir;
+          const RegistrationResult probe = registerFrom(from);
+          // A probe that fails outright (too few pairs from there) says nothing either way.
+          if (!probe.failure.empty() || !probe.T_ref_cur.matrix().allFinite()) continue;
+          const double d =
+              (probe.T_ref_cur.translation() - reg.T_ref_cur.translation()).dot(probe_dir);
+          st.probe_spread_m = std::max(st.probe_spread_m, std::abs(d));
+        }
+        if (st.probe_spread_m > config_.basin_probe_tolerance_m) st.unconfirmed_directions = 1;
+      }
+    }
   }
   st.ms_register = msSince(t1);
   timing_.add(st.ms_register);
@@ -327,6 +356,10 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         reg.degeneracy.residual_var_m2 > 0.0 ? reg.degeneracy.residual_var_m2
                                              : reg.error_rms_m * reg.error_rms_m,
         reg_config.degeneracy);
+  // A direction the probe found unfixed is known no better than the probes' spread along it.
+  if (st.unconfirmed_directions > 0)
+    st.covariance.bottomRightCorner<3, 3>() +=
+        st.probe_spread_m * st.probe_spread_m * probe_dir * probe_dir.transpose();
 
   std::string failure = reg.failure;
   if (failure.empty() && !reg.T_ref_cur.matrix().allFinite())

@@ -170,6 +170,17 @@ std::vector<ParamSpec> makeParams() {
                   "a frame that holds directions with fewer pairs than this fraction of the last "
                   "fully constrained frame's is registered again from the previous pose (0 = off)",
                   [](TrackerConfig& c) -> double& { return c.retry_pairs_below; }));
+  p.push_back(num("basin_probe_below", "",
+                  "a fully constrained frame whose weakest direction has less than this many "
+                  "times its noise floor is registered from either side of its result along it; "
+                  "flagged (unconfirmed) when a probe ends beyond basin_probe_tolerance (0 = off)",
+                  [](TrackerConfig& c) -> double& { return c.basin_probe_below; }));
+  p.push_back(num("basin_probe_step", "m",
+                  "how far either side of the result the basin probe starts",
+                  [](TrackerConfig& c) -> double& { return c.basin_probe_step_m; }));
+  p.push_back(num("basin_probe_tolerance", "m",
+                  "a probe ending farther than this from the result flags the direction",
+                  [](TrackerConfig& c) -> double& { return c.basin_probe_tolerance_m; }));
   p.push_back(num("auto_noise", "",
                   "measure the depth noise on the first frame and set edge test, pooling and "
                   "gates from it (on/off)",

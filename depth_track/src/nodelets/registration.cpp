@@ -560,6 +560,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.error_rms_m = st.error_rms_m;
     s.degenerate_directions = st.degenerate_directions;
     s.weakest_information = st.weakest_information;
+    s.unconfirmed_directions = st.unconfirmed_directions;
     s.ms_register = ms_register;
     const auto front = ctx_->times.get(h.stamp.toSec());
     s.ms_prefilter = front.first;

@@ -81,6 +81,18 @@ struct CellOdometryConfig {
   /// gates, and the planes that remain look like a degenerate view. A view that is degenerate
   /// stays so from any guess and keeps the first result. 0 = off.
   double retry_pairs_below = 0.9;
+  /// The basin probe. A frame whose view fixes every direction, but whose weakest direction
+  /// carries less than this many times its noise floor (FrameStatus::weakest_information), is
+  /// registered twice more, from its own result moved basin_probe_step_m either way along that
+  /// direction (when it is mostly a translation). Where either ends more than
+  /// basin_probe_tolerance_m from the first result along it, the view does not fix the direction
+  /// after all (a flat valley: a corridor's start with stereo noise, whose pooled creases read
+  /// as information): the frame is flagged (FrameStatus::unconfirmed_directions) and its
+  /// covariance along the direction widened to the probes' spread. Only a flag: the pose, the
+  /// velocity and everything after are as without it. 0 = off.
+  double basin_probe_below = 20.0;
+  double basin_probe_step_m = 0.02;       ///< see basin_probe_below, metres
+  double basin_probe_tolerance_m = 0.005;  ///< see basin_probe_below, metres (< the step)
   RelocaliseConfig relocalise;
   /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
   /// cells replaced by the model's planes where it is confident (SurfaceModel).
@@ -120,6 +132,14 @@ struct FrameStatus {
   /// Registered again from the previous pose (CellOdometryConfig::retry_pairs_below); kept: that
   /// result is the frame's.
   bool retried = false, retry_kept = false;
+  /// The basin probe (CellOdometryConfig::basin_probe_below): probed = the frame was registered
+  /// from either side of its result along its weakest direction; unconfirmed_directions = 1
+  /// when a probe ended more than the tolerance away (the direction is not fixed, although its
+  /// information read above the margin), probe_spread_m the farthest a probe ended from the
+  /// result along it (m; 0 when not probed).
+  bool basin_probed = false;
+  int unconfirmed_directions = 0;
+  double probe_spread_m = 0.0;
   /// With new_keyframe and the model on: how the model refined the keyframe's cells.
   ModelRefineStats model;
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
