@@ -216,7 +216,7 @@ TEST_F(EvaluateBag, ScoresAgainstGroundTruthAndSensorsAsTheCheckersDo) {
   const auto csv = readLines(out.path + "/frames.csv");
   ASSERT_EQ(csv.size(), 61u);
   for (const char* col : {"pTx", "pDz", "gt_Ty", "gt_errTy", "sens_Ty", "sens_errDz",
-                          "icp_error_mm", "matches", "fm_matches", "held_directions", "prior",
+                          "icp_error_mm", "matches", "fm_matches", "held_directions", "prior", "unconfirmed",
                           "ms_register", "ms_frame"})
     EXPECT_NE(csv[0].find(col), std::string::npos) << col << " missing in " << csv[0];
   EXPECT_EQ(readTumTrajectory(est).size(), 60u);
