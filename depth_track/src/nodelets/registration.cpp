@@ -194,6 +194,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     d.add("fm_matches", s.fm_matches);
     d.add("iterations", s.iterations);
     d.addf("icp error (mm)", "%.3f", s.error_rms_m * 1e3);
+    d.add("held directions (degenerate view)", s.degenerate_directions);
+    d.add("unconfirmed directions (basin probe)", s.unconfirmed_directions);
     d.add("frames lost in a row", lost_frames_in_a_row_);
   }
 
