@@ -307,12 +307,13 @@ int main(int argc, char** argv) {
       }
       if (status)
         std::fprintf(status,
-                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.5f,%d,%.3f,%.3f,%.3f,%.3f,\"%s\"\n",
+                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.5f,%d,%.3f,%.3f,%.3f,%.3f,"
+                     "\"%s\"\n",
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
                      st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
                      st.weakest_information, st.unconfirmed_directions, st.probe_spread_m,
-                     st.new_keyframe, st.ms_prefilter, st.ms_reduce,
-                     st.ms_register, st.ms_total, st.failure.c_str());
+                     st.new_keyframe, st.ms_prefilter, st.ms_reduce, st.ms_register, st.ms_total,
+                     st.failure.c_str());
     }
     if (status) std::fclose(status);
     const std::string what =

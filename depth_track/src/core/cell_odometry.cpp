@@ -425,6 +425,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     T_W_C_ = orthonormalized(T_W_pred);
     history_.clear();
     st.failure = failure;
+    st.unconfirmed_directions = 0;  // a frame not tracked is flagged as such, not as unconfirmed
     if (state_ != TrackingState::kRelocalising) state_ = TrackingState::kLost;
   }
   st.state = state_;

@@ -135,7 +135,7 @@ struct FrameStatus {
   /// The basin probe (CellOdometryConfig::basin_probe_below): probed = the frame was registered
   /// from either side of its result along its weakest direction; unconfirmed_directions = 1
   /// when a probe ended more than the tolerance away (the direction is not fixed, although its
-  /// information read above the margin), probe_spread_m the farthest a probe ended from the
+  /// information read above the margin; 0 on a frame not tracked), probe_spread_m the farthest a probe ended from the
   /// result along it (m; 0 when not probed).
   bool basin_probed = false;
   int unconfirmed_directions = 0;
