@@ -15,10 +15,12 @@
 
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/imu_prior.hpp"
 #include "depth_track/core/map/map_quality.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/running_stats.hpp"
 #include "depth_track/core/se3.hpp"
+#include "depth_track/core/sim/imu.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
 #include "depth_track/core/tracker.hpp"
 #include "depth_track/core/tracker_params.hpp"
@@ -135,6 +137,22 @@ int main(int argc, char** argv) {
   std::string fuse_poses;
   app.add_option("--fuse-poses", fuse_poses,
                  "fuse the frames at this TUM trajectory's poses instead of tracking");
+  // A simulated camera IMU as motion prior (rendered runs).
+  std::string imu_noise;
+  std::uint64_t imu_seed = 0;
+  ImuPriorConfig imu_config;
+  imu_config.T_C_I.translation() = Eigen::Vector3d(-0.006, 0.005, 0.012);
+  app.add_option("--imu-sim", imu_noise,
+                 "rendered runs: a camera IMU as motion prior, its readings simulated along the "
+                 "run: bmi055 (a D435i's / D455's, noise and bias) | none (exact readings)");
+  app.add_option("--imu-seed", imu_seed, "seed of the simulated IMU's noise and bias (0 = --seed)");
+  app.add_option("--imu-position-floor", imu_config.position_floor_m,
+                 "IMU prior: m added to a tracked position's standard deviation")
+      ->capture_default_str();
+  app.add_option("--imu-bias", imu_config.accel_bias_m_s2,
+                 "IMU prior: largest accelerometer bias expected, m/s^2")
+      ->capture_default_str();
+
   // Tracker and map options, shared with evaluate_bag.
   tool_options::TrackingOptions options;
   tool_options::addTrackingOptions(app, options);
@@ -185,6 +203,19 @@ int main(int argc, char** argv) {
       throw std::invalid_argument("--map-quality needs a rendered run (--render) and --map");
     const PinholeIntrinsics& K = source->intrinsics();
     Tracker tracker(K, config, options.startPose());
+
+    std::optional<ImuMotionPrior> imu;
+    std::vector<ImuSample> imu_samples;
+    std::size_t imu_fed = 0;
+    int imu_guesses = 0;
+    if (!imu_noise.empty()) {
+      if (!rendered)
+        throw std::invalid_argument("--imu-sim simulates an IMU along a rendered run (--render)");
+      imu.emplace(imu_config);
+      imu_samples = sim::simulateImu(rendered->run(), imu_config.T_C_I,
+                                     sim::ImuNoiseConfig::parse(imu_noise),
+                                     imu_seed != 0 ? imu_seed : seed);
+    }
 
     std::unique_ptr<Mapper> mapper;
     Trajectory fuse_traj;
@@ -250,7 +281,15 @@ int main(int argc, char** argv) {
           st.tracked = true;
           st.T_W_C = known.T_W_C;
         } else {
-          st = tracker.track(depth, source->stamp(i));
+          std::optional<Eigen::Isometry3d> guess;
+          if (imu) {
+            while (imu_fed < imu_samples.size() &&
+                   imu_samples[imu_fed].stamp_s <= source->stamp(i))
+              imu->add(imu_samples[imu_fed++]);
+            guess = imu->predict(source->stamp(i));
+            imu_guesses += guess.has_value();
+          }
+          st = tracker.track(depth, source->stamp(i), guess);
           keyframe_cells += st.model.cells;
           refined_cells += st.model.refined;
           retried += st.retried;
@@ -272,6 +311,7 @@ int main(int argc, char** argv) {
             if (verbose && mf.loop_attempted)
               std::printf("%5zu loop closure: %s\n", i, mf.loop.reason.c_str());
           }
+          if (imu) imu->update(source->stamp(i), tracker.pose(), positionCovariance(st));
         }
       } catch (const std::exception& e) {  // unreadable or wrong-size frame: flag it, go on
         ++bad_frames;
@@ -350,6 +390,15 @@ int main(int argc, char** argv) {
       std::printf("basin probe: %d frames probed, %d flagged unconfirmed (a direction the view "
                   "does not fix, the pose kept; basin_probe_below)\n",
                   probed, unconfirmed);
+    if (imu) {
+      std::printf("imu prior (simulated %s): %d of %zu frames guessed by it", imu_noise.c_str(),
+                  imu_guesses, n);
+      if (imu->started())
+        std::printf(", gravity %.3f m/s^2, accelerometer error %.3f m/s^2 at the end\n",
+                    imu->gravity().norm(), imu->accelError().norm());
+      else
+        std::printf("; not started: %s\n", imu->reason().c_str());
+    }
     if (tracker.noiseCalibration())
       std::printf("noise: %s\n", tracker.noiseCalibration()->summary.c_str());
     const CellCloud& cells = tracker.lastCells();

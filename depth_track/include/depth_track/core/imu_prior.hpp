@@ -1,0 +1,131 @@
+#pragma once
+/// An inertial motion prior for the tracker (ROS-free core): the camera's motion between two
+/// frames as a camera-mounted IMU (a D435i's or D455's BMI055 / BMI085, an external one) sees it,
+/// for Tracker::track's `prior_T_Cprev_Ccur`. The gyro turns the last frame's orientation, the
+/// accelerometer (gravity taken out) moves its velocity and position; the registration then fixes
+/// what the view fixes, and a direction the view does not fix keeps the IMU's motion. Each tracked
+/// frame pulls the velocity towards the motion the depth measured, so the accelerometer's bias
+/// and the gravity estimate only act over the stretches the view cannot fix.
+#include <Eigen/Geometry>
+#include <deque>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depth_track/core/cell_odometry.hpp"
+
+namespace depth_track {
+
+/// The covariance of a tracked frame's camera position in the world frame (m^2): the
+/// translation block of its registration's covariance turned from the reference frame into the
+/// world; nullopt for a frame not tracked.
+std::optional<Eigen::Matrix3d> positionCovariance(const FrameStatus& status);
+
+/// One IMU reading in the IMU's own frame. The accelerometer reads specific force: acceleration
+/// minus gravity, so +9.81 m/s^2 upwards when at rest. A reading holds from its stamp to the
+/// next one's (zero-order hold).
+struct ImuSample {
+  double stamp_s = 0.0;
+  Eigen::Vector3d gyro_rad_s = Eigen::Vector3d::Zero();
+  Eigen::Vector3d accel_m_s2 = Eigen::Vector3d::Zero();
+};
+
+struct ImuPriorConfig {
+  /// Pose of the IMU in the camera's optical frame (p_C = T_C_I * p_I): a RealSense's
+  /// camera_depth_optical_frame <- camera_imu_optical_frame from tf.
+  Eigen::Isometry3d T_C_I = Eigen::Isometry3d::Identity();
+  /// Gravity is the mean specific force over this window ending at the first frame, during which
+  /// the camera must be still (seconds).
+  double init_window_s = 0.3;
+  /// Largest spread (RMS about the mean, m/s^2) of the readings in that window: more, and the
+  /// camera was not still, and the prior waits for a later frame to start from.
+  double still_spread_m_s2 = 0.3;
+  /// The mean's magnitude must lie within this fraction of standard gravity (9.80665 m/s^2),
+  /// else the readings are not m/s^2 specific force (units, a g-scaled driver) and are refused.
+  double gravity_tolerance = 0.1;
+  /// The velocity is a Kalman filter over the IMU point's position, velocity and the
+  /// accelerometer's error in the world frame (bias and gravity estimate), with the tracked
+  /// positions as measurements. Accelerometer white noise, m/s^2/sqrt(Hz) (BMI055: 150 ug/sqrt(Hz)).
+  double accel_noise_density = 0.0015;
+  /// Largest accelerometer bias expected, m/s^2: at the start it is taken in with gravity, and
+  /// as the camera turns it reappears in the world frame (the filter's error state may then
+  /// change by this times the angle turned).
+  double accel_bias_m_s2 = 0.1;
+  /// Random walk of that error, m/s^2 per sqrt(s).
+  double accel_bias_walk = 0.002;
+  /// Standard deviation added to a tracked position's own (the registration's covariance, which
+  /// the basin probe widens along a direction it could not confirm), m.
+  double position_floor_m = 0.002;
+  /// Longest interval without a reading that is integrated across (seconds); a frame whose span
+  /// has a longer gap gets no prior.
+  double max_gap_s = 0.05;
+
+  std::vector<std::string> validate() const;
+};
+
+class ImuMotionPrior {
+ public:
+  /// Throws std::invalid_argument listing the config's problems.
+  explicit ImuMotionPrior(const ImuPriorConfig& config);
+
+  /// Adds a reading. Throws std::invalid_argument for a non-finite value or a stamp not after
+  /// the last reading's; the prior is then unchanged.
+  void add(const ImuSample& sample);
+
+  /// The camera's motion T_Cprev_Ccur from the last frame given to update() to stamp_s; nullopt
+  /// before the prior has started (see reason()), for a stamp not after that frame's, or when the
+  /// readings do not cover the interval (none at or before its start, none within max_gap_s of
+  /// its end, or a gap longer than max_gap_s inside it). Const: the state moves in update().
+  std::optional<Eigen::Isometry3d> predict(double stamp_s) const;
+
+  /// A frame's pose as the tracker left it (T_W_C) and, when it was tracked, the covariance of
+  /// its position in the world frame (m^2; positionCovariance of its FrameStatus); nullopt: not
+  /// tracked. The first call starts the prior when the readings before it show a still camera
+  /// (gravity from their mean, velocity zero); until then it returns false and reason() says
+  /// why. Later calls carry the filter across the interval and, for a tracked frame, correct
+  /// it by the tracked position. Returns whether the prior has started.
+  bool update(double stamp_s, const Eigen::Isometry3d& T_W_C,
+              const std::optional<Eigen::Matrix3d>& position_cov_W);
+
+  bool started() const { return started_; }
+  /// Why the prior has not started, or "" once it has.
+  const std::string& reason() const { return reason_; }
+  /// Gravity in the tracker's world frame (m/s^2), known once started.
+  const Eigen::Vector3d& gravity() const { return g_W_; }
+  /// Velocity of the IMU in the world frame at the last frame (m/s).
+  Eigen::Vector3d velocity() const { return x_.segment<3>(3); }
+  /// The accelerometer's error in the world frame as estimated (m/s^2).
+  Eigen::Vector3d accelError() const { return x_.tail<3>(); }
+  std::size_t samples() const { return samples_.size(); }
+  const ImuPriorConfig& config() const { return config_; }
+
+ private:
+  using Vector9d = Eigen::Matrix<double, 9, 1>;
+  using Matrix9d = Eigen::Matrix<double, 9, 9>;
+  struct Delta {
+    Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  // R_I0_I1
+    Eigen::Vector3d v = Eigen::Vector3d::Zero();      // velocity change in I0, gravity not in
+    Eigen::Vector3d p = Eigen::Vector3d::Zero();      // position change in I0, nor v0 * dt
+  };
+  std::optional<Delta> integrate(double t0, double t1) const;
+  struct Propagated {
+    Eigen::Isometry3d T_W_C;  // position from the filter's
+    Vector9d x;
+    Matrix9d P;
+  };
+  /// The filter and the camera pose carried from the last frame to stamp_s.
+  std::optional<Propagated> propagate(double stamp_s) const;
+  bool start(double stamp_s, const Eigen::Isometry3d& T_W_C);
+
+  ImuPriorConfig config_;
+  std::deque<ImuSample> samples_;
+  bool started_ = false;
+  std::string reason_ = "no frame yet";
+  Eigen::Vector3d g_W_ = Eigen::Vector3d::Zero();
+  Vector9d x_ = Vector9d::Zero();  // IMU point's position, velocity (world), accel error
+  Matrix9d P_ = Matrix9d::Zero();
+  Eigen::Isometry3d last_T_W_C_ = Eigen::Isometry3d::Identity();
+  double last_stamp_s_ = 0.0;
+};
+
+}  // namespace depth_track

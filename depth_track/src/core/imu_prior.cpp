@@ -1,0 +1,230 @@
+#include "depth_track/core/imu_prior.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "depth_track/core/se3.hpp"
+
+namespace depth_track {
+
+namespace {
+constexpr double kStandardGravity = 9.80665;  // m/s^2
+
+std::string fmt(double x) {
+  std::ostringstream s;
+  s << x;
+  return s.str();
+}
+}  // namespace
+
+std::vector<std::string> ImuPriorConfig::validate() const {
+  std::vector<std::string> p;
+  if (!isRigid(T_C_I, 1e-6)) p.push_back("T_C_I is not a rigid transform");
+  if (!(init_window_s > 0.0 && init_window_s <= 10.0))
+    p.push_back("init_window_s must be in (0, 10] s, got " + fmt(init_window_s));
+  if (!(still_spread_m_s2 > 0.0))
+    p.push_back("still_spread_m_s2 must be > 0, got " + fmt(still_spread_m_s2));
+  if (!(gravity_tolerance > 0.0 && gravity_tolerance < 1.0))
+    p.push_back("gravity_tolerance must be in (0, 1), got " + fmt(gravity_tolerance));
+  if (!(accel_noise_density > 0.0 && accel_noise_density < 1.0))
+    p.push_back("accel_noise_density must be in (0, 1) m/s^2/sqrt(Hz), got " +
+                fmt(accel_noise_density));
+  if (!(accel_bias_m_s2 >= 0.0 && accel_bias_m_s2 < 5.0))
+    p.push_back("accel_bias_m_s2 must be in [0, 5), got " + fmt(accel_bias_m_s2));
+  if (!(accel_bias_walk > 0.0 && accel_bias_walk < 1.0))
+    p.push_back("accel_bias_walk must be in (0, 1) m/s^2/sqrt(s), got " + fmt(accel_bias_walk));
+  if (!(position_floor_m > 0.0 && position_floor_m < 1.0))
+    p.push_back("position_floor_m must be in (0, 1) m, got " + fmt(position_floor_m));
+  if (!(max_gap_s > 0.0 && max_gap_s <= 1.0))
+    p.push_back("max_gap_s must be in (0, 1] s, got " + fmt(max_gap_s));
+  return p;
+}
+
+ImuMotionPrior::ImuMotionPrior(const ImuPriorConfig& config) : config_(config) {
+  const auto problems = config_.validate();
+  if (!problems.empty()) {
+    std::string all;
+    for (const auto& p : problems) all += (all.empty() ? "" : "; ") + p;
+    throw std::invalid_argument("IMU prior: " + all);
+  }
+}
+
+void ImuMotionPrior::add(const ImuSample& s) {
+  if (!std::isfinite(s.stamp_s) || !s.gyro_rad_s.allFinite() || !s.accel_m_s2.allFinite())
+    throw std::invalid_argument("IMU reading at " + fmt(s.stamp_s) + " s is not finite");
+  if (!samples_.empty() && !(s.stamp_s > samples_.back().stamp_s))
+    throw std::invalid_argument("IMU reading at " + fmt(s.stamp_s) +
+                                " s is not after the last (" + fmt(samples_.back().stamp_s) +
+                                " s)");
+  samples_.push_back(s);
+  // Before the start only the gravity window is needed; after it, from the last frame on.
+  const double keep_from = started_ ? last_stamp_s_ : s.stamp_s - config_.init_window_s - 1.0;
+  while (samples_.size() >= 2 && samples_[1].stamp_s <= keep_from) samples_.pop_front();
+}
+
+std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double t1) const {
+  if (samples_.empty() || samples_.front().stamp_s > t0 || !(t1 > t0)) return std::nullopt;
+  std::size_t k = 0;
+  while (k + 1 < samples_.size() && samples_[k + 1].stamp_s <= t0) ++k;
+  Delta d;
+  double a = t0;
+  while (a < t1) {
+    const ImuSample& s = samples_[k];
+    const bool has_next = k + 1 < samples_.size();
+    const double next = has_next ? samples_[k + 1].stamp_s : t1;
+    // The reading holds until the next one: a gap that long inside [t0, t1] is too long.
+    if ((has_next ? next : t1) - s.stamp_s > config_.max_gap_s) return std::nullopt;
+    const double b = std::min(next, t1);
+    const double h = b - a;
+    // Rotation at the piece's middle for the specific force; the piece's rotation exact.
+    const Eigen::Vector3d f = d.R * (expSO3(0.5 * h * s.gyro_rad_s) * s.accel_m_s2);
+    d.p += d.v * h + 0.5 * f * h * h;
+    d.v += f * h;
+    d.R = d.R * expSO3(h * s.gyro_rad_s);
+    a = b;
+    if (has_next) ++k;
+  }
+  return d;
+}
+
+std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp_s) const {
+  if (!started_ || !(stamp_s > last_stamp_s_)) return std::nullopt;
+  const std::optional<Delta> d = integrate(last_stamp_s_, stamp_s);
+  if (!d) return std::nullopt;
+  const double T = stamp_s - last_stamp_s_;
+  const Eigen::Matrix3d R0 = last_T_W_C_.linear() * config_.T_C_I.linear();
+  const Eigen::Vector3d p0 = x_.head<3>(), v0 = x_.segment<3>(3), e = x_.tail<3>();
+  // Gravity and the accelerometer's error act in the world frame, the readings in I0's.
+  const Eigen::Vector3d g = g_W_ + e;
+  Propagated out;
+  out.x.head<3>() = p0 + v0 * T + 0.5 * g * T * T + R0 * d->p;
+  out.x.segment<3>(3) = v0 + g * T + R0 * d->v;
+  out.x.tail<3>() = e;
+  Matrix9d F = Matrix9d::Identity();
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  F.block<3, 3>(0, 3) = T * I;
+  F.block<3, 3>(0, 6) = 0.5 * T * T * I;
+  F.block<3, 3>(3, 6) = T * I;
+  // White acceleration noise over T; the error state walks, and a bias fixed in the IMU turns
+  // with it in the world frame.
+  const double q = config_.accel_noise_density * config_.accel_noise_density;
+  Matrix9d Q = Matrix9d::Zero();
+  Q.block<3, 3>(0, 0) = q * T * T * T / 3.0 * I;
+  Q.block<3, 3>(0, 3) = Q.block<3, 3>(3, 0) = q * T * T / 2.0 * I;
+  Q.block<3, 3>(3, 3) = q * T * I;
+  const double turned = Eigen::AngleAxisd(d->R).angle();
+  const double turn_error = turned * config_.accel_bias_m_s2;
+  Q.block<3, 3>(6, 6) =
+      (config_.accel_bias_walk * config_.accel_bias_walk * T + turn_error * turn_error) * I;
+  out.P = F * P_ * F.transpose() + Q;
+  Eigen::Isometry3d T_W_I1 = Eigen::Isometry3d::Identity();
+  T_W_I1.linear() = R0 * d->R;
+  T_W_I1.translation() = out.x.head<3>();
+  out.T_W_C = orthonormalized(T_W_I1 * config_.T_C_I.inverse());
+  return out;
+}
+
+std::optional<Eigen::Isometry3d> ImuMotionPrior::predict(double stamp_s) const {
+  const auto next = propagate(stamp_s);
+  if (!next) return std::nullopt;
+  return last_T_W_C_.inverse() * next->T_W_C;
+}
+
+bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  int n = 0;
+  for (const ImuSample& s : samples_)
+    if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s) {
+      sum += s.accel_m_s2;
+      ++n;
+    }
+  if (n < 2) {
+    reason_ = "fewer than 2 IMU readings in the " + fmt(config_.init_window_s) +
+              " s before the frame at " + fmt(stamp_s) + " s";
+    return false;
+  }
+  const Eigen::Vector3d mean = sum / n;
+  double spread2 = 0.0;
+  for (const ImuSample& s : samples_)
+    if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s)
+      spread2 += (s.accel_m_s2 - mean).squaredNorm();
+  const double spread = std::sqrt(spread2 / n);
+  if (std::abs(mean.norm() - kStandardGravity) > config_.gravity_tolerance * kStandardGravity) {
+    reason_ = "the accelerometer reads " + fmt(mean.norm()) +
+              " m/s^2 on average before the frame at " + fmt(stamp_s) +
+              " s, not gravity (9.81): are the readings specific force in m/s^2?";
+    return false;
+  }
+  if (spread > config_.still_spread_m_s2) {
+    reason_ = "the camera was not still before the frame at " + fmt(stamp_s) +
+              " s (accelerometer spread " + fmt(spread) + " m/s^2 > still_spread_m_s2 " +
+              fmt(config_.still_spread_m_s2) + ")";
+    return false;
+  }
+  // At rest the accelerometer reads -gravity: gravity in W from the frame's orientation.
+  g_W_ = -((T_W_C * config_.T_C_I).linear() * mean);
+  x_.setZero();
+  x_.head<3>() = (T_W_C * config_.T_C_I).translation();
+  // Still: velocity zero to the readings' noise; the bias is in the gravity taken.
+  P_.setZero();
+  const double sv = std::max(1e-3, spread * std::sqrt(config_.init_window_s));
+  const double se = std::max(1e-3, spread / std::sqrt(static_cast<double>(n)));
+  P_.block<3, 3>(0, 0) = 1e-6 * Eigen::Matrix3d::Identity();
+  P_.block<3, 3>(3, 3) = sv * sv * Eigen::Matrix3d::Identity();
+  P_.block<3, 3>(6, 6) = se * se * Eigen::Matrix3d::Identity();
+  started_ = true;
+  reason_.clear();
+  return true;
+}
+
+bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
+                            const std::optional<Eigen::Matrix3d>& position_cov_W) {
+  if (!std::isfinite(stamp_s) || !isRigid(T_W_C, 1e-3))
+    throw std::invalid_argument("IMU prior: frame pose at " + fmt(stamp_s) +
+                                " s is not finite or not rigid");
+  if (position_cov_W && !position_cov_W->allFinite())
+    throw std::invalid_argument("IMU prior: position covariance at " + fmt(stamp_s) +
+                                " s is not finite");
+  if (!started_) {
+    if (!start(stamp_s, T_W_C)) return false;
+  } else {
+    if (!(stamp_s > last_stamp_s_))
+      throw std::invalid_argument("IMU prior: frame at " + fmt(stamp_s) +
+                                  " s is not after the last (" + fmt(last_stamp_s_) + " s)");
+    const Eigen::Vector3d p_tracked = (T_W_C * config_.T_C_I).translation();
+    if (const auto next = propagate(stamp_s)) {
+      x_ = next->x;
+      P_ = next->P;
+      if (position_cov_W) {
+        const Eigen::Matrix3d S = P_.block<3, 3>(0, 0) + *position_cov_W +
+                                  config_.position_floor_m * config_.position_floor_m *
+                                      Eigen::Matrix3d::Identity();
+        const Eigen::Matrix<double, 9, 3> K = P_.leftCols<3>() * S.inverse();
+        x_ += K * (p_tracked - x_.head<3>());
+        P_ -= K * P_.topRows<3>();
+        P_ = 0.5 * (P_ + P_.transpose());
+      }
+    } else if (position_cov_W) {
+      // Readings missing over the interval: the velocity from the depth alone; the filter
+      // starts again from the tracked position with its velocity uncertain.
+      const Eigen::Vector3d p_last = x_.head<3>();
+      x_.head<3>() = p_tracked;
+      x_.segment<3>(3) = (p_tracked - p_last) / (stamp_s - last_stamp_s_);
+      P_.block<3, 3>(3, 3) += 0.01 * Eigen::Matrix3d::Identity();
+    }
+  }
+  last_T_W_C_ = T_W_C;
+  last_stamp_s_ = stamp_s;
+  while (samples_.size() >= 2 && samples_[1].stamp_s <= last_stamp_s_) samples_.pop_front();
+  return true;
+}
+
+std::optional<Eigen::Matrix3d> positionCovariance(const FrameStatus& status) {
+  if (!status.tracked) return std::nullopt;
+  const Eigen::Matrix3d R = status.T_W_Cref.linear();
+  return R * status.covariance.block<3, 3>(3, 3) * R.transpose();
+}
+
+}  // namespace depth_track
