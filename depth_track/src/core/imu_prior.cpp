@@ -167,10 +167,12 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   g_W_ = -((T_W_C * config_.T_C_I).linear() * mean);
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
-  // Still: velocity zero to the readings' noise; the bias is in the gravity taken.
+  // Still: velocity zero to within what the readings' spread allows over the window; the
+  // bias is in the gravity taken, which is off by the mean acceleration over the window (a
+  // hand's tremor, a sway): at most about the spread.
   P_.setZero();
-  const double sv = std::max(1e-3, spread * std::sqrt(config_.init_window_s));
-  const double se = std::max(1e-3, spread / std::sqrt(static_cast<double>(n)));
+  const double sv = std::max(1e-3, spread * config_.init_window_s);
+  const double se = std::max(1e-2, spread);
   P_.block<3, 3>(0, 0) = 1e-6 * Eigen::Matrix3d::Identity();
   P_.block<3, 3>(3, 3) = sv * sv * Eigen::Matrix3d::Identity();
   P_.block<3, 3>(6, 6) = se * se * Eigen::Matrix3d::Identity();

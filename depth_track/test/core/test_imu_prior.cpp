@@ -1,0 +1,216 @@
+// The IMU motion prior (ImuMotionPrior) and the simulated camera IMU (sim::simulateImu): exact
+// readings give back the rendered trajectory's motion between frames; readings that are not a
+// still camera's, not m/s^2, out of order or with gaps are refused with the reason.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "depth_track/core/imu_prior.hpp"
+#include "depth_track/core/se3.hpp"
+#include "depth_track/core/sim/imu.hpp"
+#include "depth_track/core/sim/rendered_run.hpp"
+
+using namespace depth_track;
+
+namespace {
+
+// An IMU mounted off the optical centre and turned against it, as on a real camera.
+Eigen::Isometry3d imuMount() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(0.03, -0.01, 0.02);
+  return T;
+}
+
+Eigen::Matrix3d smallCov() { return Eigen::Matrix3d::Identity() * 1e-8; }
+
+}  // namespace
+
+namespace {
+struct GuessErrors {
+  std::vector<double> mm, deg;  // per frame from the second on
+  Eigen::Vector3d gravity = Eigen::Vector3d::Zero();
+};
+
+// The prior over a rendered run, given the true poses as the tracked ones (with exact readings):
+// the error of its guess for each next frame against the true motion.
+GuessErrors guessErrors(const std::string& name) {
+  const sim::RenderedRun run = sim::makeRun(name);
+  ImuPriorConfig cfg;
+  cfg.T_C_I = imuMount();
+  const auto samples = sim::simulateImu(run, cfg.T_C_I, sim::ImuNoiseConfig::none(), 1);
+  EXPECT_GE(samples.size(), static_cast<std::size_t>((run.stamps_s.back() + 0.5) * 200));
+  ImuMotionPrior prior(cfg);
+  std::size_t fed = 0;
+  GuessErrors out;
+  for (std::size_t i = 0; i < run.size(); ++i) {
+    const double t = run.stamps_s[i];
+    while (fed < samples.size() && samples[fed].stamp_s <= t) prior.add(samples[fed++]);
+    const auto guess = prior.predict(t);
+    EXPECT_EQ(guess.has_value(), i > 0) << name << " frame " << i;
+    if (guess) {
+      const Eigen::Isometry3d truth = run.T_W_C[i - 1].inverse() * run.T_W_C[i];
+      const Eigen::Isometry3d err = truth.inverse() * *guess;
+      out.mm.push_back(1e3 * err.translation().norm());
+      out.deg.push_back(rotationAngle(err) * 180.0 / M_PI);
+    }
+    EXPECT_TRUE(prior.update(t, run.T_W_C[i], smallCov())) << prior.reason();
+    if (i == 0) out.gravity = prior.gravity();
+  }
+  return out;
+}
+
+// Largest of v[from, v.size() - but_last).
+double maxOf(const std::vector<double>& v, std::size_t from = 0, std::size_t but_last = 0) {
+  double m = 0.0;
+  for (std::size_t i = from; i + but_last < v.size(); ++i) m = std::max(m, v[i]);
+  return m;
+}
+}  // namespace
+
+// Room3: at rest for three frames, then two laps of a circle at 0.3 m/s (a turn of 0.43 rad/s
+// from a standing start), with the IMU off the optical centre and turned against it. Gravity is
+// straight down in the run's world (z up, REP 103) and each guess is the true motion to within
+// the integration's error. The start's jump in speed and turn rate falls inside one 5 ms reading,
+// whose mean a reading holds from its own stamp, and so does the stop after the last frame: the
+// guesses of frames 2, 3 and the last are off by up to 0.26 mm / 0.027 deg. The filter takes the
+// start's error out over the next two seconds (0.10 mm at frame 10, 0.006 mm at frame 50); from
+// 2 s on the guesses are within 0.013 mm / 0.0001 deg (measured).
+TEST(ImuPrior, ExactReadingsGiveBackTheMotionBetweenFrames) {
+  const GuessErrors e = guessErrors("room3");
+  EXPECT_NEAR(e.gravity.x(), 0.0, 1e-6);
+  EXPECT_NEAR(e.gravity.y(), 0.0, 1e-6);
+  EXPECT_NEAR(e.gravity.z(), -9.80665, 1e-6);
+  std::printf("room3, exact readings: worst guess error %.4f mm, %.5f deg over %zu frames; "
+              "from 2 s to the last but one %.4f mm, %.5f deg\n",
+              maxOf(e.mm), maxOf(e.deg), e.mm.size(), maxOf(e.mm, 60, 1), maxOf(e.deg, 60, 1));
+  EXPECT_LT(maxOf(e.mm), 0.5);
+  EXPECT_LT(maxOf(e.deg), 0.05);
+  EXPECT_LT(maxOf(e.mm, 60, 1), 0.05);
+  EXPECT_LT(maxOf(e.deg, 60, 1), 0.001);
+}
+
+// wall_slide sways in pitch (0.3 deg at 0.9 Hz) from the start, so the "still" window before
+// the first frame tilts and gravity is taken 0.035 m/s^2 off. The tracked positions pull the
+// filter's accelerometer error in: the guesses are off by up to 1.1 mm over the first second
+// and under 0.01 mm from 3 s on (measured), through the turns to the wall and back.
+TEST(ImuPrior, ASwayingStartIsCorrectedByTheTrackedPositions) {
+  const GuessErrors e = guessErrors("wall_slide");
+  EXPECT_GT(std::abs(e.gravity.x()) + std::abs(e.gravity.y()), 0.01);
+  EXPECT_NEAR(e.gravity.norm(), 9.80665, 0.01);
+  std::printf("wall_slide, exact readings: worst guess error %.4f mm in the first second, "
+              "%.4f mm from 3 s on\n",
+              maxOf(std::vector<double>(e.mm.begin(), e.mm.begin() + 30)), maxOf(e.mm, 90));
+  EXPECT_LT(maxOf(e.mm), 2.0);
+  EXPECT_LT(maxOf(e.mm, 90), 0.05);
+  EXPECT_LT(maxOf(e.deg), 0.005);
+}
+
+// A still camera read by a BMI055 (noise and bias): the readings' spread is the datasheet's
+// noise density at 200 Hz, their mean gravity plus a bias of at most 0.1 m/s^2 per axis.
+TEST(ImuPrior, SimulatedBmi055AtRest) {
+  const sim::RenderedRun run = sim::makeRun("chair_still");
+  ASSERT_TRUE(static_cast<bool>(run.pose_at));
+  const auto noise = sim::ImuNoiseConfig::bmi055();
+  const auto samples = sim::simulateImu(run, Eigen::Isometry3d::Identity(), noise, 7);
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero(), gyro_mean = Eigen::Vector3d::Zero();
+  for (const auto& s : samples) mean += s.accel_m_s2, gyro_mean += s.gyro_rad_s;
+  mean /= samples.size();
+  gyro_mean /= samples.size();
+  double var = 0.0;
+  for (const auto& s : samples) var += (s.accel_m_s2 - mean).squaredNorm();
+  const double sigma = std::sqrt(var / samples.size() / 3.0);
+  EXPECT_NEAR(sigma, noise.accel_noise_m_s2, 0.1 * noise.accel_noise_m_s2);
+  const Eigen::Vector3d up_C = run.T_W_C[0].linear().transpose() * Eigen::Vector3d::UnitZ();
+  const Eigen::Vector3d bias = mean - 9.80665 * up_C;
+  EXPECT_LE(bias.cwiseAbs().maxCoeff(), noise.accel_bias_m_s2 + 0.005);
+  EXPECT_GT(bias.norm(), 0.0);
+  EXPECT_LE(gyro_mean.cwiseAbs().maxCoeff(), noise.gyro_bias_rad_s + 0.001);
+  // Another seed, other biases.
+  const auto other = sim::simulateImu(run, Eigen::Isometry3d::Identity(), noise, 8);
+  EXPECT_NE(other[10].accel_m_s2, samples[10].accel_m_s2);
+}
+
+TEST(ImuPrior, StartsOnlyFromAStillCameraReadInMetresPerSecondSquared) {
+  ImuPriorConfig cfg;
+  const Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  {  // a driver that publishes g instead of m/s^2
+    ImuMotionPrior prior(cfg);
+    for (int j = 0; j < 60; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {0, -1.0, 0}});
+    EXPECT_FALSE(prior.update(0.3, pose, smallCov()));
+    EXPECT_NE(prior.reason().find("m/s^2"), std::string::npos) << prior.reason();
+    EXPECT_FALSE(prior.predict(0.33).has_value());
+  }
+  {  // shaken before the first frame
+    ImuMotionPrior prior(cfg);
+    for (int j = 0; j < 60; ++j)
+      prior.add({j * 0.005, Eigen::Vector3d::Zero(), {(j % 2 ? 3.0 : -3.0), -9.8, 0}});
+    EXPECT_FALSE(prior.update(0.3, pose, smallCov()));
+    EXPECT_NE(prior.reason().find("not still"), std::string::npos) << prior.reason();
+    // Still from then on: it starts at a later frame.
+    for (int j = 60; j < 200; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {0, -9.8, 0}});
+    EXPECT_TRUE(prior.update(0.99, pose, smallCov())) << prior.reason();
+    EXPECT_TRUE(prior.reason().empty());
+  }
+  {  // no readings at all
+    ImuMotionPrior prior(cfg);
+    EXPECT_FALSE(prior.update(0.3, pose, smallCov()));
+    EXPECT_NE(prior.reason().find("fewer than 2"), std::string::npos) << prior.reason();
+  }
+}
+
+TEST(ImuPrior, RefusesBadReadingsAndGaps) {
+  ImuPriorConfig cfg;
+  ImuMotionPrior prior(cfg);
+  for (int j = 0; j < 60; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {0, -9.8, 0}});
+  EXPECT_THROW(prior.add({0.1, Eigen::Vector3d::Zero(), {0, -9.8, 0}}), std::invalid_argument);
+  EXPECT_THROW(prior.add({0.4, Eigen::Vector3d(NAN, 0, 0), {0, -9.8, 0}}), std::invalid_argument);
+  EXPECT_EQ(prior.samples(), 60u);  // unchanged by the refused readings
+  ASSERT_TRUE(prior.update(0.29, Eigen::Isometry3d::Identity(), smallCov()));
+  EXPECT_TRUE(prior.predict(0.30).has_value());
+  // The last reading (0.295 s) is more than max_gap_s (50 ms) before 0.36 s.
+  EXPECT_FALSE(prior.predict(0.36).has_value());
+  // A gap inside the interval.
+  prior.add({0.5, Eigen::Vector3d::Zero(), {0, -9.8, 0}});
+  EXPECT_FALSE(prior.predict(0.45).has_value());
+  EXPECT_FALSE(prior.predict(0.29).has_value());  // not after the last frame
+  EXPECT_THROW(prior.update(0.2, Eigen::Isometry3d::Identity(), smallCov()),
+               std::invalid_argument);
+  Eigen::Matrix3d nan_cov = smallCov();
+  nan_cov(0, 0) = NAN;
+  EXPECT_THROW(prior.update(0.5, Eigen::Isometry3d::Identity(), nan_cov), std::invalid_argument);
+}
+
+TEST(ImuPrior, ConfigAndSimulatorCheckTheirInput) {
+  ImuPriorConfig bad;
+  bad.position_floor_m = 0.0;
+  bad.accel_noise_density = -1.0;
+  try {
+    ImuMotionPrior prior(bad);
+    FAIL() << "accepted a bad config";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("position_floor_m"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("accel_noise_density"), std::string::npos);
+  }
+  // A stepped run has no trajectory between its frames.
+  const sim::RenderedRun stepped = sim::makeRun("xtest1_05_chair");
+  EXPECT_THROW(sim::simulateImu(stepped, Eigen::Isometry3d::Identity(),
+                                sim::ImuNoiseConfig::none(), 1),
+               std::invalid_argument);
+  EXPECT_THROW(sim::ImuNoiseConfig::parse("bmi088"), std::invalid_argument);
+}
+
+// The untracked frame: the filter carries on with the IMU alone, and a frame's position
+// covariance comes from its status, turned into the world frame.
+TEST(ImuPrior, PositionCovarianceOfAStatus) {
+  FrameStatus st;
+  st.tracked = false;
+  EXPECT_FALSE(positionCovariance(st).has_value());
+  st.tracked = true;
+  st.covariance.setZero();
+  st.covariance(3, 3) = 4e-4;  // along the reference camera's x
+  st.T_W_Cref.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Eigen::Matrix3d c = *positionCovariance(st);
+  EXPECT_NEAR(c(1, 1), 4e-4, 1e-12);  // the camera's x is the world's y
+  EXPECT_NEAR(c(0, 0), 0.0, 1e-12);
+}
