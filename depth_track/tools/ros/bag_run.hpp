@@ -11,12 +11,14 @@
 #include <rig_msgs/TruckRc.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
+#include <sensor_msgs/Imu.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_msgs/TFMessage.h>
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <map>
 #include <memory>
@@ -27,6 +29,7 @@
 #include <vector>
 
 #include "depth_track/core/evaluation.hpp"
+#include "depth_track/core/imu_prior.hpp"
 #include "depth_track/core/servotrack_kinematics.hpp"
 #include "depth_track/core/tum_io.hpp"
 #include "depth_track/ros/conversions.hpp"
@@ -132,6 +135,8 @@ struct Streams {
   std::vector<std::string> clocks_missing;          ///< Time1..Time6 never recorded
   std::optional<Eigen::Isometry3d> T_base_optical;  ///< from /tf_static
   std::vector<std::string> problems;                ///< messages left out, and why
+  /// /tf_static as child -> (parent, T_parent_child).
+  std::map<std::string, std::pair<std::string, Eigen::Isometry3d>> static_tf;
 };
 
 namespace detail {
@@ -271,6 +276,37 @@ inline Streams readStreams(rosbag::Bag& bag, const Topics& t, const std::string&
   detail::keepOrdered(out.sensors.gimbal, t.car, out.problems);
   detail::keepOrdered(out.sensors.truck, t.truck, out.problems);
   if (const auto T = detail::chain(parent_of, "base_link", optical_frame)) out.T_base_optical = *T;
+  out.static_tf = std::move(parent_of);
+  return out;
+}
+
+/// A camera IMU's readings (sensor_msgs/Imu with angular velocity and linear acceleration, as a
+/// RealSense driver publishes them with unite_imu_method) in stamp order, and their frame id.
+struct ImuStream {
+  std::vector<ImuSample> samples;
+  std::string frame_id;
+  std::size_t left_out = 0;  ///< non-finite or going back in time
+};
+
+inline ImuStream readImu(rosbag::Bag& bag, const std::string& topic) {
+  ImuStream out;
+  for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery(topic))) {
+    const auto msg = m.instantiate<sensor_msgs::Imu>();
+    if (!msg) continue;
+    if (out.frame_id.empty()) out.frame_id = msg->header.frame_id;
+    ImuSample s;
+    s.stamp_s = detail::stampOf(msg->header, m);
+    s.gyro_rad_s = Eigen::Vector3d(msg->angular_velocity.x, msg->angular_velocity.y,
+                                   msg->angular_velocity.z);
+    s.accel_m_s2 = Eigen::Vector3d(msg->linear_acceleration.x, msg->linear_acceleration.y,
+                                   msg->linear_acceleration.z);
+    if (!std::isfinite(s.stamp_s) || !s.gyro_rad_s.allFinite() || !s.accel_m_s2.allFinite() ||
+        (!out.samples.empty() && !(s.stamp_s > out.samples.back().stamp_s))) {
+      ++out.left_out;
+      continue;
+    }
+    out.samples.push_back(s);
+  }
   return out;
 }
 

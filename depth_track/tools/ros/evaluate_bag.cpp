@@ -329,8 +329,14 @@ int main(int argc, char** argv) {
   std::string motion_prior = "none";
   app.add_option("--motion-prior", motion_prior,
                  "the tracker's motion guess: none (constant velocity) | sensors (the rig's "
-                 "sensors' motion between frames, as the graph's ~guess_frame)")
-      ->check(CLI::IsMember({"none", "sensors"}))
+                 "sensors' motion between frames, as the graph's ~guess_frame) | imu (the "
+                 "camera's IMU, --imu-topic, as the registration nodelet's ~imu)")
+      ->check(CLI::IsMember({"none", "sensors", "imu"}))
+      ->capture_default_str();
+  std::string imu_topic = "/camera/imu";
+  app.add_option("--imu-topic", imu_topic,
+                 "sensor_msgs/Imu topic for --motion-prior imu (gyro and accelerometer in one "
+                 "message); its frame's mount on the depth frame from /tf_static")
       ->capture_default_str();
   tool_options::TrackingOptions options;
   tool_options::addTrackingOptions(app, options);
@@ -550,6 +556,35 @@ int main(int argc, char** argv) {
       report.line("  motion prior  the rig's sensors (" + refs.sensors.describe() +
                   "): their motion between frames is the tracker's guess");
     }
+    // --motion-prior imu: the camera's IMU (ImuMotionPrior), its mount from /tf_static.
+    std::optional<ImuMotionPrior> imu_prior;
+    bag_run::ImuStream imu;
+    std::size_t imu_fed = 0;
+    if (motion_prior == "imu") {
+      imu = bag_run::readImu(*bag, imu_topic);
+      if (imu.samples.size() < 2)
+        throw std::invalid_argument("--motion-prior imu: " + imu_topic + " holds " +
+                                    std::to_string(imu.samples.size()) +
+                                    " usable sensor_msgs/Imu messages (give --imu-topic)");
+      ImuPriorConfig ic;
+      const auto T_C_I = bag_run::detail::chain(streams.static_tf, optical_frame, imu.frame_id);
+      if (!T_C_I && imu.frame_id != optical_frame)
+        throw std::invalid_argument("--motion-prior imu: no " + optical_frame + " -> " +
+                                    imu.frame_id + " (the IMU's mount) in /tf_static");
+      if (T_C_I) ic.T_C_I = *T_C_I;
+      imu_prior.emplace(ic);
+      report.line(fmt("  motion prior  the camera's IMU (%s, %zu readings at %.0f Hz, frame %s at "
+                      "(%.3f, %.3f, %.3f) m in %s)%s",
+                      imu_topic.c_str(), imu.samples.size(),
+                      (imu.samples.size() - 1) /
+                          (imu.samples.back().stamp_s - imu.samples.front().stamp_s),
+                      imu.frame_id.c_str(), ic.T_C_I.translation().x(),
+                      ic.T_C_I.translation().y(), ic.T_C_I.translation().z(),
+                      optical_frame.c_str(),
+                      imu.left_out > 0
+                          ? fmt("; %zu non-finite or out of order left out", imu.left_out).c_str()
+                          : ""));
+    }
     std::unique_ptr<Mapper> mapper;
     if (options.mapWanted() || plots)
       mapper = std::make_unique<Mapper>(K, options.mapperConfig(), tracker.pose());
@@ -602,6 +637,11 @@ int main(int argc, char** argv) {
           const double cpu0 = cpuMs();
           std::optional<Eigen::Isometry3d> prior;
           if (sensor_prior) prior = sensor_prior->next(stamp);
+          if (imu_prior) {
+            while (imu_fed < imu.samples.size() && imu.samples[imu_fed].stamp_s <= stamp)
+              imu_prior->add(imu.samples[imu_fed++]);
+            prior = imu_prior->predict(stamp);
+          }
           const FrameStatus st = tracker.track(depth, stamp, prior);
           f.tracked = st.tracked;
           f.failure = st.failure;
@@ -633,6 +673,7 @@ int main(int argc, char** argv) {
             }
             f.ms_map = msSince(tm);
           }
+          if (imu_prior) imu_prior->update(stamp, tracker.pose(), positionCovariance(st));
           f.cpu_ms = cpuMs() - cpu0;
         } catch (const std::exception& e) {  // wrong encoding or size: flag the frame, go on
           ++bad_frames;
@@ -664,6 +705,12 @@ int main(int argc, char** argv) {
       report.line(fmt("motion prior: the sensors' motion guided %zu of %zu frames (the others, the "
                       "first and any outside the sensor streams, the constant-velocity guess)",
                       frames_with(&FrameRecord::prior), frames.size()));
+    if (imu_prior) {
+      report.line(fmt("motion prior: the IMU guided %zu of %zu frames", frames_with(&FrameRecord::prior),
+                      frames.size()));
+      if (!imu_prior->started())
+        report.line("  note: the IMU prior never started: " + imu_prior->reason());
+    }
     if (out_of_order > 0)
       report.line(
           fmt("note: %zu frames skipped because their stamps go back in time (first: "

@@ -18,20 +18,30 @@
 //   /carriage_sensors              (ServoTrack, CarDRV)      (launch/servotrack.launch,
 //   /truck_rc                      (ServoTruck, TruckDRV)    servotruck.launch)
 //   /raw_frames                    rig_msgs/RawFrame of every board, both directions
+//   /camera/imu                    with --imu: sensor_msgs/Imu at 200 Hz, frame
+//                                  camera_imu_optical_frame (a D435i's with unite_imu_method:
+//                                  gyro and accelerometer in one message), simulated along the
+//                                  camera's true poses interpolated between exposures; its
+//                                  mount on /tf_static
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <rosbag/bag.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
 #include <tf2_msgs/TFMessage.h>
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <iostream>
 #include <map>
+#include <optional>
 
+#include "depth_track/core/se3.hpp"
+#include "depth_track/core/sim/imu.hpp"
 #include "depth_track/core/sim/noise.hpp"
 #include "depth_track/core/sim/render.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
@@ -48,6 +58,15 @@ namespace {
 /// Bags start at a fixed epoch so that two runs give identical files.
 const ros::Time kEpoch(1700000000, 0);
 const char* kOpticalFrame = "camera_depth_optical_frame";
+const char* kImuFrame = "camera_imu_optical_frame";
+
+/// The IMU's mount in the depth optical frame: a few millimetres off the optical centre, axes
+/// aligned, as on a D435i (T_C_I).
+Eigen::Isometry3d imuMount() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(-0.006, 0.005, 0.012);
+  return T;
+}
 
 ros::Time stamp(double t_s) { return kEpoch + ros::Duration(t_s); }
 
@@ -135,7 +154,7 @@ sensor_msgs::CameraInfo cameraInfo(const depth_track::PinholeIntrinsics& K) {
 
 int run(int argc, char** argv) {
   CLI::App app{"Writes one rig simulator scenario as a bag (offline, deterministic)."};
-  std::string scenario_path, out_dir = ".", compression = "lz4", noise_model_path;
+  std::string scenario_path, out_dir = ".", compression = "lz4", noise_model_path, imu_noise;
   int max_frames = 0, threads = 1;
   app.add_option("--scenario", scenario_path, "scenario YAML (config/scenarios/*.yaml)")
       ->required();
@@ -146,7 +165,12 @@ int run(int argc, char** argv) {
   app.add_option("--noise-model", noise_model_path,
                  "noise model YAML (camera_check's noise_model section) instead of the "
                  "scenario's noise preset: a run as a measured camera would record it");
+  app.add_option("--imu", imu_noise,
+                 "also write a camera IMU (/camera/imu, 200 Hz): bmi055 (a D435i's / D455's "
+                 "noise and bias) | none (exact readings); default: no IMU");
   CLI11_PARSE(app, argc, argv);
+  std::optional<dsim::ImuNoiseConfig> imu_config;
+  if (!imu_noise.empty()) imu_config = dsim::ImuNoiseConfig::parse(imu_noise);
   if (compression != "none" && compression != "lz4" && compression != "bz2") {
     std::cerr << "make_scenario_bag: --compression must be none, lz4 or bz2 (got '" << compression
               << "')\n";
@@ -182,6 +206,8 @@ int run(int argc, char** argv) {
   {
     tf2_msgs::TFMessage st;
     st.transforms = conv::rigStaticTransforms(sim, kEpoch, kOpticalFrame);
+    if (imu_config)
+      st.transforms.push_back(conv::toTransformStamped(kEpoch, kOpticalFrame, kImuFrame, imuMount()));
     bag.write("/tf_static", kEpoch, st, connectionHeader<tf2_msgs::TFMessage>({{"latching", "1"}}));
   }
 
@@ -194,6 +220,8 @@ int run(int argc, char** argv) {
   const sensor_msgs::CameraInfo info0 = cameraInfo(K);
   RigTopics rig(bag);
   int frames = 0, image_seq = 0;
+  std::vector<double> truth_t;  // the exposures' true poses, for the IMU
+  std::vector<Eigen::Isometry3d> truth_T;
   double render_ms = 0.0;
   const double slice_s = 0.02;
   const double t_limit = scenario.durationS() * 3.0 + 60.0;  // mode 2 timing is only estimated
@@ -243,17 +271,53 @@ int run(int argc, char** argv) {
       tf2_msgs::TFMessage tf;
       tf.transforms.push_back(conv::toTransformStamped(t, "map", "camera_gt", cf.truth.T_W_C));
       bag.write("/tf", t, tf);
+      truth_t.push_back(cf.truth.t_s);
+      truth_T.push_back(cf.truth.T_W_C);
       ++frames;
     }
     for (; li < link.size(); ++li) rig.write(link[li]);
+  }
+  int imu_messages = 0;
+  if (imu_config && !truth_t.empty()) {
+    // Between exposures the camera moves along the chord of its true poses (position linear,
+    // rotation slerp); before the first it stands where the first exposure finds it. rosbag
+    // indexes by stamp, so writing the readings after the frames replays them in time order.
+    auto pose_at = [&](double t) {
+      if (t <= truth_t.front()) return truth_T.front();
+      if (t >= truth_t.back()) return truth_T.back();
+      const std::size_t b = static_cast<std::size_t>(
+          std::upper_bound(truth_t.begin(), truth_t.end(), t) - truth_t.begin());
+      const double f = (t - truth_t[b - 1]) / (truth_t[b] - truth_t[b - 1]);
+      return depth_track::interpolatePose(truth_T[b - 1], truth_T[b], f);
+    };
+    const double t0 = std::max(0.0, truth_t.front() - 0.5);
+    const auto readings =
+        dsim::simulateImu(pose_at, t0, truth_t.back(), imuMount(), *imu_config, scenario.seed);
+    std::uint32_t seq = 0;
+    for (const auto& r : readings) {
+      sensor_msgs::Imu m;
+      m.header.stamp = stamp(r.stamp_s);
+      m.header.seq = seq++;
+      m.header.frame_id = kImuFrame;
+      m.orientation_covariance[0] = -1.0;  // no orientation, as the camera's driver
+      m.angular_velocity.x = r.gyro_rad_s.x();
+      m.angular_velocity.y = r.gyro_rad_s.y();
+      m.angular_velocity.z = r.gyro_rad_s.z();
+      m.linear_acceleration.x = r.accel_m_s2.x();
+      m.linear_acceleration.y = r.accel_m_s2.y();
+      m.linear_acceleration.z = r.accel_m_s2.z();
+      bag.write("/camera/imu", m.header.stamp, m);
+    }
+    imu_messages = static_cast<int>(readings.size());
   }
   bag.close();
   const double total_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_start).count();
   std::printf(
-      "make_scenario_bag: %s: %d frames, %d rig state messages, %.1f s simulated -> %s "
-      "(%.0f ms total, render+noise %.1f ms/frame)\n",
-      scenario.name.c_str(), frames, rig.stateMessages(), sim.now(), path.c_str(), total_ms,
+      "make_scenario_bag: %s: %d frames, %d rig state messages, %d IMU readings, %.1f s "
+      "simulated -> %s (%.0f ms total, render+noise %.1f ms/frame)\n",
+      scenario.name.c_str(), frames, rig.stateMessages(), imu_messages, sim.now(), path.c_str(),
+      total_ms,
       frames ? render_ms / frames : 0.0);
   return 0;
 }

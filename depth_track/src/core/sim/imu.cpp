@@ -45,19 +45,28 @@ std::vector<ImuSample> simulateImu(const RenderedRun& run, const Eigen::Isometry
   if (!run.pose_at)
     throw std::invalid_argument("simulated IMU: run '" + run.name +
                                 "' has no continuous trajectory (stepped run)");
-  if (!isRigid(T_C_I)) throw std::invalid_argument("simulated IMU: T_C_I is not rigid");
+  if (!(lead_s >= 0.0)) throw std::invalid_argument("simulated IMU: lead_s must be >= 0");
+  if (run.stamps_s.empty()) return {};
+  // pose_at takes the frames' stamps (and holds the first pose before the first stamp).
+  return simulateImu(run.pose_at, run.stamps_s.front() - lead_s, run.stamps_s.back(), T_C_I,
+                     noise, seed);
+}
+
+std::vector<ImuSample> simulateImu(const std::function<Eigen::Isometry3d(double)>& T_W_C,
+                                   double t_first, double t_last, const Eigen::Isometry3d& T_C_I,
+                                   const ImuNoiseConfig& noise, std::uint64_t seed) {
   auto problems = noise.validate();
-  if (!(lead_s >= 0.0)) problems.push_back("lead_s must be >= 0");
+  if (!T_W_C) problems.push_back("no trajectory");
+  if (!isRigid(T_C_I)) problems.push_back("T_C_I is not rigid");
+  if (!(t_last >= t_first)) problems.push_back("t_last must be >= t_first");
   if (!problems.empty()) {
     std::string all;
     for (const auto& p : problems) all += (all.empty() ? "" : "; ") + p;
     throw std::invalid_argument("simulated IMU: " + all);
   }
-  if (run.stamps_s.empty()) return {};
   const Eigen::Vector3d g_W(0.0, 0.0, -9.80665);
-  const double t0 = run.stamps_s.front(), dt = 1.0 / noise.rate_hz;
-  // pose_at takes the frames' stamps (and holds the first pose before the first stamp).
-  auto T_W_I = [&](double t) { return run.pose_at(t) * T_C_I; };
+  const double dt = 1.0 / noise.rate_hz;
+  auto T_W_I = [&](double t) { return T_W_C(t) * T_C_I; };
   const double h = 1e-4;  // central differences for the velocity
   auto velocity = [&](double t) {
     return Eigen::Vector3d((T_W_I(t + h).translation() - T_W_I(t - h).translation()) / (2 * h));
@@ -69,11 +78,10 @@ std::vector<ImuSample> simulateImu(const RenderedRun& run, const Eigen::Isometry
   for (int k = 0; k < 3; ++k) b_g[k] = noise.gyro_bias_rad_s * uni(rng);
   for (int k = 0; k < 3; ++k) b_a[k] = noise.accel_bias_m_s2 * uni(rng);
   std::vector<ImuSample> out;
-  const double t_end = run.stamps_s.back();
-  const long n = static_cast<long>(std::floor((t_end - (t0 - lead_s)) / dt)) + 1;
+  const long n = static_cast<long>(std::floor((t_last - t_first) / dt)) + 1;
   out.reserve(static_cast<std::size_t>(n));
   for (long j = 0; j < n; ++j) {
-    const double t = t0 - lead_s + j * dt;
+    const double t = t_first + j * dt;
     const Eigen::Isometry3d A = T_W_I(t), B = T_W_I(t + dt), M = T_W_I(t + 0.5 * dt);
     ImuSample s;
     s.stamp_s = t;

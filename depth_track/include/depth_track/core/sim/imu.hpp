@@ -4,6 +4,7 @@
 /// with white noise and a constant bias per axis. World frame z up (REP 103, scene.hpp).
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -40,6 +41,13 @@ struct ImuNoiseConfig {
 std::vector<ImuSample> simulateImu(const RenderedRun& run, const Eigen::Isometry3d& T_C_I,
                                    const ImuNoiseConfig& noise, std::uint64_t seed,
                                    double lead_s = 0.5);
+
+/// The same along any camera trajectory T_W_C(t) (world z up), readings stamped from t_first
+/// to t_last (seconds). Throws std::invalid_argument for an empty function, t_last < t_first, a
+/// non-rigid T_C_I or a bad noise config.
+std::vector<ImuSample> simulateImu(const std::function<Eigen::Isometry3d(double)>& T_W_C,
+                                   double t_first, double t_last, const Eigen::Isometry3d& T_C_I,
+                                   const ImuNoiseConfig& noise, std::uint64_t seed);
 
 }  // namespace sim
 }  // namespace depth_track
