@@ -20,6 +20,7 @@
 #include <rig_msgs/TrackingStatus.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Imu.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_ros/buffer.h>
@@ -35,6 +36,7 @@
 
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/cell_reducer.hpp"
+#include "depth_track/core/imu_prior.hpp"
 #include "depth_track/core/map/mapper_params.hpp"
 #include "depth_track/core/noise_model.hpp"
 #include "depth_track/core/tracker_params.hpp"
@@ -68,6 +70,13 @@ class RegistrationNodelet : public nodelet::Nodelet {
     guess_child_frame_ = r.getString("guess_child_frame");
     if (guess_child_frame_.empty()) guess_child_frame_ = base_frame_;
     guess_timeout_s_ = r.getDouble("guess_timeout");
+    use_imu_ = r.getBool("imu");
+    imu_config_.init_window_s = r.getDouble("imu_init_window");
+    imu_config_.accel_noise_density = r.getDouble("imu_accel_noise_density");
+    imu_config_.accel_bias_m_s2 = r.getDouble("imu_accel_bias");
+    imu_config_.accel_bias_walk = r.getDouble("imu_accel_bias_walk");
+    imu_config_.position_floor_m = r.getDouble("imu_position_floor");
+    imu_timeout_s_ = r.getDouble("imu_timeout");
     static_tf_timeout_s_ = r.getDouble("static_tf_timeout");
     publish_tf_ = r.getBool("publish_tf");
     path_length_ = r.getInt("path_length");
@@ -154,18 +163,36 @@ class RegistrationNodelet : public nodelet::Nodelet {
     cells_sub_ = nh.subscribe("cells", 50, &RegistrationNodelet::onCells, this);
     if (config_.auto_noise)
       noise_sub_ = nh.subscribe("cells/noise", 1, &RegistrationNodelet::onNoise, this);
+    if (use_imu_)
+      imu_sub_ = nh.subscribe("imu", 2000, &RegistrationNodelet::onImu, this,
+                              ros::TransportHints().tcpNoDelay());
     NODELET_INFO("registration: %s, %s -> %s, method %s%s",
                  mode == Mode::kReplay ? "replay" : "live", odom_frame_.c_str(),
                  base_frame_.c_str(), toString(config_.registration.method).c_str(),
-                 guess_frame_.empty()
-                     ? ""
-                     : (", prior from tf " + guess_frame_ + " -> " + guess_child_frame_).c_str());
+                 !guess_frame_.empty()
+                     ? (", prior from tf " + guess_frame_ + " -> " + guess_child_frame_).c_str()
+                 : use_imu_ ? (", prior from the IMU on " + imu_sub_.getTopic()).c_str()
+                            : "");
   }
 
   void onInfo(const sensor_msgs::CameraInfoConstPtr& info) {
     std::lock_guard<std::mutex> lock(info_mutex_);
     info_ = info;
   }
+  /// IMU readings, buffered until the frame they reach is tracked.
+  void onImu(const sensor_msgs::ImuConstPtr& m) {
+    ImuSample s;
+    s.stamp_s = m->header.stamp.toSec();
+    s.gyro_rad_s = Eigen::Vector3d(m->angular_velocity.x, m->angular_velocity.y,
+                                   m->angular_velocity.z);
+    s.accel_m_s2 = Eigen::Vector3d(m->linear_acceleration.x, m->linear_acceleration.y,
+                                   m->linear_acceleration.z);
+    std::lock_guard<std::mutex> lock(imu_mutex_);
+    if (imu_frame_.empty()) imu_frame_ = m->header.frame_id;
+    imu_buffer_.push_back(s);
+    if (imu_buffer_.size() > 20000) imu_buffer_.pop_front();  // 100 s at 200 Hz: nobody reads
+  }
+
   void onCells(const sensor_msgs::PointCloud2ConstPtr& m) {
     diag_.input();
     queue_->push(m);
@@ -296,6 +323,63 @@ class RegistrationNodelet : public nodelet::Nodelet {
     }
   }
 
+  /// The IMU prior's guess for the frame at `stamp` (camera frame `camera_frame`): readings up
+  /// to the stamp handed over (waiting up to imu_timeout for one at or after it), the prior
+  /// built once the IMU's mount is in tf. Problems go to the log, throttled; the frame then
+  /// takes the constant-velocity guess.
+  std::optional<Eigen::Isometry3d> imuPrior(const ros::Time& stamp,
+                                            const std::string& camera_frame) {
+    const double t = stamp.toSec();
+    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(imu_timeout_s_);
+    std::deque<ImuSample> take;
+    std::string frame;
+    for (;;) {
+      {
+        std::lock_guard<std::mutex> lock(imu_mutex_);
+        frame = imu_frame_;
+        if ((!imu_buffer_.empty() && imu_buffer_.back().stamp_s >= t) ||
+            ros::WallTime::now() >= deadline) {
+          while (!imu_buffer_.empty() && imu_buffer_.front().stamp_s <= t) {
+            take.push_back(imu_buffer_.front());
+            imu_buffer_.pop_front();
+          }
+          break;
+        }
+      }
+      ros::WallDuration(0.002).sleep();
+    }
+    if (frame.empty()) {
+      NODELET_WARN_THROTTLE(5.0, "registration: ~imu is on but no reading came on %s",
+                            imu_sub_.getTopic().c_str());
+      return std::nullopt;
+    }
+    if (!imu_) {
+      try {
+        const auto tf = tf_buffer_->lookupTransform(camera_frame, frame, ros::Time(0));
+        ImuPriorConfig c = imu_config_;
+        c.T_C_I = conv::fromTransformMsg(tf.transform);
+        imu_.emplace(c);
+        NODELET_INFO("registration: IMU %s at (%.3f, %.3f, %.3f) m in %s", frame.c_str(),
+                     c.T_C_I.translation().x(), c.T_C_I.translation().y(),
+                     c.T_C_I.translation().z(), camera_frame.c_str());
+      } catch (const std::exception& e) {
+        NODELET_WARN_THROTTLE(5.0,
+                              "registration: waiting for the IMU's mount %s -> %s in tf (%s); "
+                              "constant velocity meanwhile",
+                              camera_frame.c_str(), frame.c_str(), e.what());
+        return std::nullopt;
+      }
+    }
+    for (const ImuSample& s : take) {
+      try {
+        imu_->add(s);
+      } catch (const std::exception& e) {
+        NODELET_WARN_THROTTLE(5.0, "registration: IMU reading left out: %s", e.what());
+      }
+    }
+    return imu_->predict(t);
+  }
+
   std::optional<Eigen::Isometry3d> prior(const ros::Time& stamp) {
     if (guess_frame_.empty()) return std::nullopt;
     try {
@@ -375,7 +459,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
       const double prev_stamp = prev_stamp_;
       prev_stamp_ = h.stamp.toSec();
       const auto t0 = std::chrono::steady_clock::now();
-      const auto guess = prior(h.stamp);
+      auto guess = prior(h.stamp);
+      if (!guess && use_imu_ && guess_frame_.empty()) guess = imuPrior(h.stamp, h.frame_id);
       FrameStatus st = odometry_->track(cells, guess);
       rig_msgs::TrackingStatus s = newStatus(h);
       s.prior_used = guess.has_value();
@@ -392,6 +477,16 @@ class RegistrationNodelet : public nodelet::Nodelet {
       }
       const double ms_register =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      if (imu_) {
+        try {
+          imu_->update(h.stamp.toSec(), odometry_->pose(), positionCovariance(st));
+          if (!imu_->started())
+            NODELET_WARN_THROTTLE(5.0, "registration: the IMU prior has not started: %s",
+                                  imu_->reason().c_str());
+        } catch (const std::exception& e) {
+          NODELET_WARN_THROTTLE(5.0, "registration: IMU prior: %s", e.what());
+        }
+      }
       publishFrame(h, st, ms_register, s);
     } catch (const std::exception& e) {
       reject(h, e.what());
@@ -583,6 +678,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     if (!T_odom_base) ctx_->map.clear(++epoch_);  // a new start: the old map does not apply
     path_.poses.clear();
     trajectory_.clear();
+    imu_.reset();  // starts again from the next still window
     frames_ = 0;
     lost_frames_ = 0;
     prev_stamp_ = -1.0;
@@ -693,6 +789,15 @@ class RegistrationNodelet : public nodelet::Nodelet {
   bool have_mount_ = false;
   Eigen::Isometry3d T_g_base_prev_ = Eigen::Isometry3d::Identity();
   bool have_guess_ = false;
+  // ~imu: the camera's IMU as motion prior (built once its mount is in tf).
+  bool use_imu_ = false;
+  ImuPriorConfig imu_config_;
+  double imu_timeout_s_ = 0.05;
+  ros::Subscriber imu_sub_;
+  std::mutex imu_mutex_;
+  std::string imu_frame_;
+  std::deque<ImuSample> imu_buffer_;
+  std::optional<ImuMotionPrior> imu_;
   StampGuard guard_;
   std::atomic<bool> paused_{false};
   std::uint32_t frames_ = 0, rejected_ = 0, epoch_ = 0;

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "depth_track/core/camera.hpp"
+#include "depth_track/core/imu_prior.hpp"
 
 namespace depth_track {
 namespace rosparams {
@@ -145,6 +146,34 @@ std::vector<NodeParamSpec> makeParams() {
                    "default file of save_trajectory (TUM format; map poses beside it as "
                    "<name>_map.txt)",
                    "/tmp/depth_track_trajectory.txt"));
+  p.push_back(flag("registration", "imu",
+                   "the camera's IMU as motion prior (topic imu: sensor_msgs/Imu with gyro and "
+                   "accelerometer in one message, e.g. realsense2_camera with unite_imu_method; "
+                   "its mount from tf, depth optical frame -> the messages' frame); the camera "
+                   "must be still for imu_init_window before the first frame; guess_frame wins "
+                   "when both are set",
+                   false));
+  {
+    const ImuPriorConfig d;
+    p.push_back(num("registration", "imu_init_window", "s",
+                    "gravity from the mean accelerometer reading over this window before the "
+                    "first frame (the camera still)",
+                    d.init_window_s, 0.01, 10.0));
+    p.push_back(num("registration", "imu_accel_noise_density", "m/s^2/sqrt(Hz)",
+                    "accelerometer white noise (BMI055: 0.0015)", d.accel_noise_density, 1e-6,
+                    0.99));
+    p.push_back(num("registration", "imu_accel_bias", "m/s^2",
+                    "largest accelerometer bias expected (reappears as the camera turns)",
+                    d.accel_bias_m_s2, 0.0, 4.99));
+    p.push_back(num("registration", "imu_accel_bias_walk", "m/s^2/sqrt(s)",
+                    "random walk of the accelerometer's error", d.accel_bias_walk, 1e-6, 0.99));
+    p.push_back(num("registration", "imu_position_floor", "m",
+                    "added to a tracked position's standard deviation in the IMU filter",
+                    d.position_floor_m, 1e-5, 0.99));
+    p.push_back(num("registration", "imu_timeout", "s",
+                    "wait this long for an IMU reading at or after a frame's stamp", 0.05, 0.0,
+                    10.0));
+  }
   p.push_back(integer("registration", "live_queue", "frames", live_queue_help, 2, 1, 10));
   // ---- fusion ----
   p.push_back(text("fusion", "mode", mode_help, "live", {"live", "replay"}));
