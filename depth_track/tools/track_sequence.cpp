@@ -149,6 +149,9 @@ int main(int argc, char** argv) {
   app.add_option("--imu-position-floor", imu_config.position_floor_m,
                  "IMU prior: m added to a tracked position's standard deviation")
       ->capture_default_str();
+  app.add_option("--imu-unmodelled", imu_config.unmodelled_accel_m_s2,
+                 "IMU prior: acceleration the filter does not model, m/s^2")
+      ->capture_default_str();
   app.add_option("--imu-bias", imu_config.accel_bias_m_s2,
                  "IMU prior: largest accelerometer bias expected, m/s^2")
       ->capture_default_str();
@@ -394,8 +397,9 @@ int main(int argc, char** argv) {
       std::printf("imu prior (simulated %s): %d of %zu frames guessed by it", imu_noise.c_str(),
                   imu_guesses, n);
       if (imu->started())
-        std::printf(", gravity %.3f m/s^2, accelerometer error %.3f m/s^2 at the end\n",
-                    imu->gravity().norm(), imu->accelError().norm());
+        std::printf(", gravity %.3f m/s^2; at the end: gravity error %.3f m/s^2, accelerometer "
+                    "bias %.3f m/s^2\n",
+                    imu->gravity().norm(), imu->gravityError().norm(), imu->accelBias().norm());
       else
         std::printf("; not started: %s\n", imu->reason().c_str());
     }

@@ -35,6 +35,9 @@ std::vector<std::string> ImuPriorConfig::validate() const {
     p.push_back("accel_bias_m_s2 must be in [0, 5), got " + fmt(accel_bias_m_s2));
   if (!(accel_bias_walk > 0.0 && accel_bias_walk < 1.0))
     p.push_back("accel_bias_walk must be in (0, 1) m/s^2/sqrt(s), got " + fmt(accel_bias_walk));
+  if (!(unmodelled_accel_m_s2 >= 0.0 && unmodelled_accel_m_s2 < 10.0))
+    p.push_back("unmodelled_accel_m_s2 must be in [0, 10) m/s^2, got " +
+                fmt(unmodelled_accel_m_s2));
   if (!(position_floor_m > 0.0 && position_floor_m < 1.0))
     p.push_back("position_floor_m must be in (0, 1) m, got " + fmt(position_floor_m));
   if (!(max_gap_s > 0.0 && max_gap_s <= 1.0))
@@ -64,7 +67,8 @@ void ImuMotionPrior::add(const ImuSample& s) {
   while (samples_.size() >= 2 && samples_[1].stamp_s <= keep_from) samples_.pop_front();
 }
 
-std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double t1) const {
+std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double t1,
+                                                               const Eigen::Vector3d& bias) const {
   if (samples_.empty() || samples_.front().stamp_s > t0 || !(t1 > t0)) return std::nullopt;
   std::size_t k = 0;
   while (k + 1 < samples_.size() && samples_[k + 1].stamp_s <= t0) ++k;
@@ -79,9 +83,12 @@ std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double
     const double b = std::min(next, t1);
     const double h = b - a;
     // Rotation at the piece's middle for the specific force; the piece's rotation exact.
-    const Eigen::Vector3d f = d.R * (expSO3(0.5 * h * s.gyro_rad_s) * s.accel_m_s2);
+    const Eigen::Matrix3d R_mid = d.R * expSO3(0.5 * h * s.gyro_rad_s);
+    const Eigen::Vector3d f = R_mid * (s.accel_m_s2 - bias);
     d.p += d.v * h + 0.5 * f * h * h;
     d.v += f * h;
+    d.Jp += d.Jv * h - 0.5 * h * h * R_mid;
+    d.Jv -= h * R_mid;
     d.R = d.R * expSO3(h * s.gyro_rad_s);
     a = b;
     if (has_next) ++k;
@@ -91,37 +98,43 @@ std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double
 
 std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp_s) const {
   if (!started_ || !(stamp_s > last_stamp_s_)) return std::nullopt;
-  const std::optional<Delta> d = integrate(last_stamp_s_, stamp_s);
+  const Eigen::Vector3d p0 = x_.head<3>(), v0 = x_.segment<3>(3), e = x_.segment<3>(6),
+                        bias = x_.tail<3>();
+  const std::optional<Delta> d = integrate(last_stamp_s_, stamp_s, bias);
   if (!d) return std::nullopt;
   const double T = stamp_s - last_stamp_s_;
   const Eigen::Matrix3d R0 = last_T_W_C_.linear() * config_.T_C_I.linear();
-  const Eigen::Vector3d p0 = x_.head<3>(), v0 = x_.segment<3>(3), e = x_.tail<3>();
-  // Gravity and the accelerometer's error act in the world frame, the readings in I0's.
+  // The guess moves the camera from where the tracker left it; the filter's own position (its
+  // estimate of that) only weighs the next measurement.
+  const Eigen::Vector3d p_tracked = (last_T_W_C_ * config_.T_C_I).translation();
   const Eigen::Vector3d g = g_W_ + e;
   Propagated out;
+  out.x = x_;
   out.x.head<3>() = p0 + v0 * T + 0.5 * g * T * T + R0 * d->p;
   out.x.segment<3>(3) = v0 + g * T + R0 * d->v;
-  out.x.tail<3>() = e;
-  Matrix9d F = Matrix9d::Identity();
+  Matrix12d F = Matrix12d::Identity();
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
   F.block<3, 3>(0, 3) = T * I;
   F.block<3, 3>(0, 6) = 0.5 * T * T * I;
+  F.block<3, 3>(0, 9) = R0 * d->Jp;
   F.block<3, 3>(3, 6) = T * I;
-  // White acceleration noise over T; the error state walks, and a bias fixed in the IMU turns
-  // with it in the world frame.
-  const double q = config_.accel_noise_density * config_.accel_noise_density;
-  Matrix9d Q = Matrix9d::Zero();
+  F.block<3, 3>(3, 9) = R0 * d->Jv;
+  // White acceleration noise: the readings' own and what the filter does not model (the
+  // tracked orientation's tilt turning gravity into the horizontal, timing); the gravity error
+  // and the bias walk.
+  const double q = config_.accel_noise_density * config_.accel_noise_density +
+                   config_.unmodelled_accel_m_s2 * config_.unmodelled_accel_m_s2 * T;
+  Matrix12d Q = Matrix12d::Zero();
   Q.block<3, 3>(0, 0) = q * T * T * T / 3.0 * I;
   Q.block<3, 3>(0, 3) = Q.block<3, 3>(3, 0) = q * T * T / 2.0 * I;
   Q.block<3, 3>(3, 3) = q * T * I;
-  const double turned = Eigen::AngleAxisd(d->R).angle();
-  const double turn_error = turned * config_.accel_bias_m_s2;
-  Q.block<3, 3>(6, 6) =
-      (config_.accel_bias_walk * config_.accel_bias_walk * T + turn_error * turn_error) * I;
+  const double walk = config_.accel_bias_walk * config_.accel_bias_walk * T;
+  Q.block<3, 3>(6, 6) = walk * I;
+  Q.block<3, 3>(9, 9) = walk * I;
   out.P = F * P_ * F.transpose() + Q;
   Eigen::Isometry3d T_W_I1 = Eigen::Isometry3d::Identity();
   T_W_I1.linear() = R0 * d->R;
-  T_W_I1.translation() = out.x.head<3>();
+  T_W_I1.translation() = p_tracked + (out.x.head<3>() - p0);
   out.T_W_C = orthonormalized(T_W_I1 * config_.T_C_I.inverse());
   return out;
 }
@@ -164,18 +177,26 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
     return false;
   }
   // At rest the accelerometer reads -gravity: gravity in W from the frame's orientation.
-  g_W_ = -((T_W_C * config_.T_C_I).linear() * mean);
+  // At rest the accelerometer reads bias - gravity: gravity in W from the frame's orientation,
+  // with the bias in it. A bias b (IMU frame) leaves gravity off by R0 b: the filter's gravity
+  // error starts fully correlated with its bias, and as the camera turns the two part.
+  const Eigen::Matrix3d R0 = (T_W_C * config_.T_C_I).linear();
+  g_W_ = -(R0 * mean);
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
-  // Still: velocity zero to within what the readings' spread allows over the window; the
-  // bias is in the gravity taken, which is off by the mean acceleration over the window (a
-  // hand's tremor, a sway): at most about the spread.
   P_.setZero();
+  // Still: velocity zero to within what the readings' spread allows over the window; the mean
+  // is off by the window's mean acceleration (a hand's tremor, a sway): at most about the spread.
   const double sv = std::max(1e-3, spread * config_.init_window_s);
   const double se = std::max(1e-2, spread);
-  P_.block<3, 3>(0, 0) = 1e-6 * Eigen::Matrix3d::Identity();
-  P_.block<3, 3>(3, 3) = sv * sv * Eigen::Matrix3d::Identity();
-  P_.block<3, 3>(6, 6) = se * se * Eigen::Matrix3d::Identity();
+  const double sb = std::max(1e-3, config_.accel_bias_m_s2);
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  P_.block<3, 3>(0, 0) = 1e-6 * I;
+  P_.block<3, 3>(3, 3) = sv * sv * I;
+  P_.block<3, 3>(6, 6) = (sb * sb + se * se) * I;
+  P_.block<3, 3>(9, 9) = sb * sb * I;
+  P_.block<3, 3>(6, 9) = sb * sb * R0;
+  P_.block<3, 3>(9, 6) = sb * sb * R0.transpose();
   started_ = true;
   reason_.clear();
   return true;
@@ -203,7 +224,7 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
         const Eigen::Matrix3d S = P_.block<3, 3>(0, 0) + *position_cov_W +
                                   config_.position_floor_m * config_.position_floor_m *
                                       Eigen::Matrix3d::Identity();
-        const Eigen::Matrix<double, 9, 3> K = P_.leftCols<3>() * S.inverse();
+        const Eigen::Matrix<double, 12, 3> K = P_.leftCols<3>() * S.inverse();
         x_ += K * (p_tracked - x_.head<3>());
         P_ -= K * P_.topRows<3>();
         P_ = 0.5 * (P_ + P_.transpose());

@@ -163,10 +163,16 @@ std::vector<NodeParamSpec> makeParams() {
                     "accelerometer white noise (BMI055: 0.0015)", d.accel_noise_density, 1e-6,
                     0.99));
     p.push_back(num("registration", "imu_accel_bias", "m/s^2",
-                    "largest accelerometer bias expected (reappears as the camera turns)",
+                    "accelerometer bias expected per axis (standard deviation; taken in with "
+                    "gravity at the start, told apart as the camera turns)",
                     d.accel_bias_m_s2, 0.0, 4.99));
     p.push_back(num("registration", "imu_accel_bias_walk", "m/s^2/sqrt(s)",
-                    "random walk of the accelerometer's error", d.accel_bias_walk, 1e-6, 0.99));
+                    "random walk of the bias and of the gravity error", d.accel_bias_walk, 1e-6,
+                    0.99));
+    p.push_back(num("registration", "imu_unmodelled_accel", "m/s^2",
+                    "acceleration the IMU filter does not model (the tracked orientation's tilt "
+                    "turning gravity, timing)",
+                    d.unmodelled_accel_m_s2, 0.0, 9.99));
     p.push_back(num("registration", "imu_position_floor", "m",
                     "added to a tracked position's standard deviation in the IMU filter",
                     d.position_floor_m, 1e-5, 0.99));

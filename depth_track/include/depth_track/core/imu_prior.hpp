@@ -43,16 +43,20 @@ struct ImuPriorConfig {
   /// The mean's magnitude must lie within this fraction of standard gravity (9.80665 m/s^2),
   /// else the readings are not m/s^2 specific force (units, a g-scaled driver) and are refused.
   double gravity_tolerance = 0.1;
-  /// The velocity is a Kalman filter over the IMU point's position, velocity and the
-  /// accelerometer's error in the world frame (bias and gravity estimate), with the tracked
-  /// positions as measurements. Accelerometer white noise, m/s^2/sqrt(Hz) (BMI055: 150 ug/sqrt(Hz)).
+  /// The velocity is a Kalman filter over the IMU point's position and velocity, the error of the
+  /// gravity taken at the start (world frame) and the accelerometer's bias (IMU frame), with the
+  /// tracked positions as measurements. Accelerometer white noise, m/s^2/sqrt(Hz) (BMI055: 150 ug/sqrt(Hz)).
   double accel_noise_density = 0.0015;
-  /// Largest accelerometer bias expected, m/s^2: at the start it is taken in with gravity, and
-  /// as the camera turns it reappears in the world frame (the filter's error state may then
-  /// change by this times the angle turned).
+  /// Accelerometer bias expected, m/s^2 per axis (standard deviation): at the start it is taken
+  /// in with gravity, and as the camera turns the two part, and the tracked positions tell them
+  /// apart.
   double accel_bias_m_s2 = 0.1;
-  /// Random walk of that error, m/s^2 per sqrt(s).
+  /// Random walk of the bias and of the gravity error, m/s^2 per sqrt(s).
   double accel_bias_walk = 0.002;
+  /// Acceleration the filter does not model, m/s^2 over each frame interval: the tracked
+  /// orientation's tilt turning gravity into the horizontal (0.1 deg: 0.017 m/s^2), the readings'
+  /// timing. It keeps the filter from trusting its velocity beyond what the tracked positions say.
+  double unmodelled_accel_m_s2 = 0.1;
   /// Standard deviation added to a tracked position's own (the registration's covariance, which
   /// the basin probe widens along a direction it could not confirm), m.
   double position_floor_m = 0.002;
@@ -94,24 +98,29 @@ class ImuMotionPrior {
   const Eigen::Vector3d& gravity() const { return g_W_; }
   /// Velocity of the IMU in the world frame at the last frame (m/s).
   Eigen::Vector3d velocity() const { return x_.segment<3>(3); }
-  /// The accelerometer's error in the world frame as estimated (m/s^2).
-  Eigen::Vector3d accelError() const { return x_.tail<3>(); }
+  /// The gravity error as estimated, world frame (m/s^2).
+  Eigen::Vector3d gravityError() const { return x_.segment<3>(6); }
+  /// The accelerometer's bias as estimated, IMU frame (m/s^2).
+  Eigen::Vector3d accelBias() const { return x_.tail<3>(); }
   std::size_t samples() const { return samples_.size(); }
   const ImuPriorConfig& config() const { return config_; }
 
  private:
-  using Vector9d = Eigen::Matrix<double, 9, 1>;
-  using Matrix9d = Eigen::Matrix<double, 9, 9>;
+  using Vector12d = Eigen::Matrix<double, 12, 1>;
+  using Matrix12d = Eigen::Matrix<double, 12, 12>;
   struct Delta {
     Eigen::Matrix3d R = Eigen::Matrix3d::Identity();  // R_I0_I1
     Eigen::Vector3d v = Eigen::Vector3d::Zero();      // velocity change in I0, gravity not in
     Eigen::Vector3d p = Eigen::Vector3d::Zero();      // position change in I0, nor v0 * dt
+    Eigen::Matrix3d Jv = Eigen::Matrix3d::Zero();     // d v / d bias
+    Eigen::Matrix3d Jp = Eigen::Matrix3d::Zero();     // d p / d bias
   };
-  std::optional<Delta> integrate(double t0, double t1) const;
+  /// The readings over [t0, t1], less the accelerometer bias `bias`.
+  std::optional<Delta> integrate(double t0, double t1, const Eigen::Vector3d& bias) const;
   struct Propagated {
     Eigen::Isometry3d T_W_C;  // position from the filter's
-    Vector9d x;
-    Matrix9d P;
+    Vector12d x;
+    Matrix12d P;
   };
   /// The filter and the camera pose carried from the last frame to stamp_s.
   std::optional<Propagated> propagate(double stamp_s) const;
@@ -122,8 +131,9 @@ class ImuMotionPrior {
   bool started_ = false;
   std::string reason_ = "no frame yet";
   Eigen::Vector3d g_W_ = Eigen::Vector3d::Zero();
-  Vector9d x_ = Vector9d::Zero();  // IMU point's position, velocity (world), accel error
-  Matrix9d P_ = Matrix9d::Zero();
+  // The IMU point's position and velocity (world), gravity error (world), accelerometer bias (IMU).
+  Vector12d x_ = Vector12d::Zero();
+  Matrix12d P_ = Matrix12d::Zero();
   Eigen::Isometry3d last_T_W_C_ = Eigen::Isometry3d::Identity();
   double last_stamp_s_ = 0.0;
 };
