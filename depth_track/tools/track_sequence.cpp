@@ -149,6 +149,10 @@ int main(int argc, char** argv) {
   app.add_option("--imu-position-floor", imu_config.position_floor_m,
                  "IMU prior: m added to a tracked position's standard deviation")
       ->capture_default_str();
+  app.add_option("--imu-significance", imu_config.accel_significance,
+                 "IMU prior: sigmas of the accelerometer error taken off each interval's "
+                 "acceleration (0 = off)")
+      ->capture_default_str();
   app.add_option("--imu-unmodelled", imu_config.unmodelled_accel_m_s2,
                  "IMU prior: acceleration the filter does not model, m/s^2")
       ->capture_default_str();

@@ -35,6 +35,8 @@ std::vector<std::string> ImuPriorConfig::validate() const {
     p.push_back("accel_bias_m_s2 must be in [0, 5), got " + fmt(accel_bias_m_s2));
   if (!(accel_bias_walk > 0.0 && accel_bias_walk < 1.0))
     p.push_back("accel_bias_walk must be in (0, 1) m/s^2/sqrt(s), got " + fmt(accel_bias_walk));
+  if (!(accel_significance >= 0.0 && accel_significance <= 10.0))
+    p.push_back("accel_significance must be in [0, 10] sigmas, got " + fmt(accel_significance));
   if (!(unmodelled_accel_m_s2 >= 0.0 && unmodelled_accel_m_s2 < 10.0))
     p.push_back("unmodelled_accel_m_s2 must be in [0, 10) m/s^2, got " +
                 fmt(unmodelled_accel_m_s2));
@@ -83,13 +85,14 @@ std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double
     const double b = std::min(next, t1);
     const double h = b - a;
     // Rotation at the piece's middle for the specific force; the piece's rotation exact.
-    const Eigen::Matrix3d R_mid = d.R * expSO3(0.5 * h * s.gyro_rad_s);
+    const Eigen::Vector3d w = s.gyro_rad_s - gyro_bias_;
+    const Eigen::Matrix3d R_mid = d.R * expSO3(0.5 * h * w);
     const Eigen::Vector3d f = R_mid * (s.accel_m_s2 - bias);
     d.p += d.v * h + 0.5 * f * h * h;
     d.v += f * h;
     d.Jp += d.Jv * h - 0.5 * h * h * R_mid;
     d.Jv -= h * R_mid;
-    d.R = d.R * expSO3(h * s.gyro_rad_s);
+    d.R = d.R * expSO3(h * w);
     a = b;
     if (has_next) ++k;
   }
@@ -108,17 +111,32 @@ std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp
   // estimate of that) only weighs the next measurement.
   const Eigen::Vector3d p_tracked = (last_T_W_C_ * config_.T_C_I).translation();
   const Eigen::Vector3d g = g_W_ + e;
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  // The interval's mean acceleration as the IMU reads it, and how well the filter knows the
+  // accelerometer's error in it (the gravity error less the bias turned into the world, at the
+  // interval's rotation): an acceleration within accel_significance of those sigmas cannot be
+  // told from moving at a constant velocity and is taken as that much smaller (a soft
+  // threshold), so that over seconds of a view that cannot correct it the error does not run.
+  const Eigen::Vector3d dv = g * T + R0 * d->v;
+  double keep = 1.0;
+  if (config_.accel_significance > 0.0) {
+    Eigen::Matrix<double, 3, 6> J;
+    J << I, -R0 * (-d->Jv / T);  // the bias's mean effect over the interval
+    const Eigen::Matrix3d S = J * P_.bottomRightCorner<6, 6>() * J.transpose();
+    const double tau = config_.accel_significance * std::sqrt(std::max(0.0, S.trace() / 3.0));
+    const double a = dv.norm() / T;
+    keep = a > tau ? (a - tau) / a : 0.0;
+  }
   Propagated out;
   out.x = x_;
-  out.x.head<3>() = p0 + v0 * T + 0.5 * g * T * T + R0 * d->p;
-  out.x.segment<3>(3) = v0 + g * T + R0 * d->v;
+  out.x.head<3>() = p0 + v0 * T + keep * (0.5 * g * T * T + R0 * d->p);
+  out.x.segment<3>(3) = v0 + keep * dv;
   Matrix12d F = Matrix12d::Identity();
-  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
   F.block<3, 3>(0, 3) = T * I;
-  F.block<3, 3>(0, 6) = 0.5 * T * T * I;
-  F.block<3, 3>(0, 9) = R0 * d->Jp;
-  F.block<3, 3>(3, 6) = T * I;
-  F.block<3, 3>(3, 9) = R0 * d->Jv;
+  F.block<3, 3>(0, 6) = keep * 0.5 * T * T * I;
+  F.block<3, 3>(0, 9) = keep * R0 * d->Jp;
+  F.block<3, 3>(3, 6) = keep * T * I;
+  F.block<3, 3>(3, 9) = keep * R0 * d->Jv;
   // White acceleration noise: the readings' own and what the filter does not model (the
   // tracked orientation's tilt turning gravity into the horizontal, timing); the gravity error
   // and the bias walk.
@@ -146,11 +164,12 @@ std::optional<Eigen::Isometry3d> ImuMotionPrior::predict(double stamp_s) const {
 }
 
 bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
-  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero(), gyro_sum = Eigen::Vector3d::Zero();
   int n = 0;
   for (const ImuSample& s : samples_)
     if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s) {
       sum += s.accel_m_s2;
+      gyro_sum += s.gyro_rad_s;
       ++n;
     }
   if (n < 2) {
@@ -182,6 +201,8 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   // error starts fully correlated with its bias, and as the camera turns the two part.
   const Eigen::Matrix3d R0 = (T_W_C * config_.T_C_I).linear();
   g_W_ = -(R0 * mean);
+  // Still, the gyro reads its bias.
+  gyro_bias_ = gyro_sum / n;
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
   P_.setZero();

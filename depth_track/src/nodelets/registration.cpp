@@ -76,6 +76,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     imu_config_.accel_bias_m_s2 = r.getDouble("imu_accel_bias");
     imu_config_.accel_bias_walk = r.getDouble("imu_accel_bias_walk");
     imu_config_.unmodelled_accel_m_s2 = r.getDouble("imu_unmodelled_accel");
+    imu_config_.accel_significance = r.getDouble("imu_accel_significance");
     imu_config_.position_floor_m = r.getDouble("imu_position_floor");
     imu_timeout_s_ = r.getDouble("imu_timeout");
     static_tf_timeout_s_ = r.getDouble("static_tf_timeout");

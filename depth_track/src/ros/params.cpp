@@ -169,6 +169,10 @@ std::vector<NodeParamSpec> makeParams() {
     p.push_back(num("registration", "imu_accel_bias_walk", "m/s^2/sqrt(s)",
                     "random walk of the bias and of the gravity error", d.accel_bias_walk, 1e-6,
                     0.99));
+    p.push_back(num("registration", "imu_accel_significance", "sigmas",
+                    "an interval's acceleration is taken as smaller by this many sigmas of the "
+                    "accelerometer error the filter still has (0 = off)",
+                    d.accel_significance, 0.0, 10.0));
     p.push_back(num("registration", "imu_unmodelled_accel", "m/s^2",
                     "acceleration the IMU filter does not model (the tracked orientation's tilt "
                     "turning gravity, timing)",

@@ -34,8 +34,8 @@ struct ImuPriorConfig {
   /// Pose of the IMU in the camera's optical frame (p_C = T_C_I * p_I): a RealSense's
   /// camera_depth_optical_frame <- camera_imu_optical_frame from tf.
   Eigen::Isometry3d T_C_I = Eigen::Isometry3d::Identity();
-  /// Gravity is the mean specific force over this window ending at the first frame, during which
-  /// the camera must be still (seconds).
+  /// Gravity is the mean specific force over this window ending at the first frame, and the
+  /// gyro's bias its mean rate, during which the camera must be still (seconds).
   double init_window_s = 0.3;
   /// Largest spread (RMS about the mean, m/s^2) of the readings in that window: more, and the
   /// camera was not still, and the prior waits for a later frame to start from.
@@ -57,6 +57,11 @@ struct ImuPriorConfig {
   /// orientation's tilt turning gravity into the horizontal (0.1 deg: 0.017 m/s^2), the readings'
   /// timing. It keeps the filter from trusting its velocity beyond what the tracked positions say.
   double unmodelled_accel_m_s2 = 0.1;
+  /// An interval's mean acceleration is taken as smaller by this many standard deviations of the
+  /// filter's own uncertainty about the accelerometer's error (bias and gravity; 0 = off):
+  /// what it cannot tell from a constant velocity does not build up over a view that cannot
+  /// correct it. A start from rest, a braking robot read far above it.
+  double accel_significance = 3.0;
   /// Standard deviation added to a tracked position's own (the registration's covariance, which
   /// the basin probe widens along a direction it could not confirm), m.
   double position_floor_m = 0.002;
@@ -100,6 +105,8 @@ class ImuMotionPrior {
   Eigen::Vector3d velocity() const { return x_.segment<3>(3); }
   /// The gravity error as estimated, world frame (m/s^2).
   Eigen::Vector3d gravityError() const { return x_.segment<3>(6); }
+  /// The gyro's bias: its mean reading over the still start (rad/s, IMU frame).
+  const Eigen::Vector3d& gyroBias() const { return gyro_bias_; }
   /// The accelerometer's bias as estimated, IMU frame (m/s^2).
   Eigen::Vector3d accelBias() const { return x_.tail<3>(); }
   std::size_t samples() const { return samples_.size(); }
@@ -131,6 +138,7 @@ class ImuMotionPrior {
   bool started_ = false;
   std::string reason_ = "no frame yet";
   Eigen::Vector3d g_W_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_bias_ = Eigen::Vector3d::Zero();  // the mean rate of the still start
   // The IMU point's position and velocity (world), gravity error (world), accelerometer bias (IMU).
   Vector12d x_ = Vector12d::Zero();
   Matrix12d P_ = Matrix12d::Zero();
