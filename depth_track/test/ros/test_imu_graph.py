@@ -11,68 +11,26 @@ evaluate_bag --motion-prior imu computes the same prior offline (ImuMotionPrior)
 graph used the IMU, its poses are the offline ones, and the IMU holds the drive's start where the
 constant-velocity guess loses it.
 """
-import csv
 import os
-import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import unittest
 
-import rospkg
 import rostest
-from ros_test_tools import tool
+from ros_test_tools import (hall1_d435_bag, largest_surge_error_mm, replay_and_evaluate,
+                            tum_poses)
 
 FRAMES = 90
-
-
-def poses(path):
-    return [[float(x) for x in l.split()] for l in open(path) if l.strip() and not l.startswith("#")]
-
-
-def largest_surge_error_mm(out_dir):
-    with open(os.path.join(out_dir, "frames.csv")) as f:
-        return max(abs(float(r["gt_errDz"])) for r in csv.DictReader(f))
 
 
 class ImuPrior(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="dt_imu_prior_")
-        root = os.path.dirname(os.path.realpath(rospkg.RosPack().get_path("depth_track")))
-        with open(os.path.join(root, "config", "scenarios", "Hall1.yaml")) as f:
-            text = f.read()
-        text = re.sub(r"^noise:\s*\S+", "noise: d435", text, count=1, flags=re.M)
-        text = re.sub(r"^seed:\s*\S+", "seed: 6", text, count=1, flags=re.M)
-        text = re.sub(r"^name:\s*\S+", "name: Hall1_D435_imu", text, count=1, flags=re.M)
-        scenario = os.path.join(cls.dir, "Hall1_D435_imu.yaml")
-        with open(scenario, "w") as f:
-            f.write(text)
-        subprocess.run([tool("rig_drivers", "make_scenario_bag"), "--scenario", scenario,
-                        "--out-dir", cls.dir, "--max-frames", str(FRAMES), "--compression", "none",
-                        "--imu", "bmi055"],
-                       check=True, stdout=subprocess.DEVNULL)
-        cls.bag = os.path.join(cls.dir, "Hall1_D435_imu.bag")
+        cls.bag = hall1_d435_bag(cls.dir, "Hall1_D435_imu", FRAMES, extra=("--imu", "bmi055"), seed=6)
         cls.graph_traj = os.path.join(cls.dir, "graph_trajectory.txt")
-        # Half rate: every frame reaches the graph in order even on a loaded machine. The D435
-        # scenario bags are in millimetres.
-        launch = subprocess.run(
-            ["roslaunch", os.path.join(root, "launch", "replay.launch"), "bag:=" + cls.bag,
-             "rate:=0.5", "depth_scale:=0.001", "motion_prior:=imu",
-             "trajectory_path:=" + cls.graph_traj,
-             "map_path:=" + os.path.join(cls.dir, "graph_map.bt"),
-             "table_path:=" + os.path.join(cls.dir, "table.txt")],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-        cls.launch_log = launch.stdout
-        cls.runs = {}
-        for prior in ("imu", "none"):
-            out = os.path.join(cls.dir, prior)
-            run = subprocess.run(
-                [tool("depth_track", "evaluate_bag"), cls.bag, "--out-dir", out, "--quiet",
-                 "--latency-scan", "0", "--motion-prior", prior],
-                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-            cls.runs[prior] = (run, out)
+        cls.launch_log, cls.runs = replay_and_evaluate(cls.dir, cls.bag, "imu", ("imu", "none"))
 
     @classmethod
     def tearDownClass(cls):
@@ -92,7 +50,7 @@ class ImuPrior(unittest.TestCase):
         # before it).
         self.assertIn("motion prior: the IMU guided %d of %d frames" % (FRAMES - 1, FRAMES), report)
         self.assertNotIn("never started", report)
-        graph, offline = poses(self.graph_traj), poses(os.path.join(out, "trajectory.txt"))
+        graph, offline = tum_poses(self.graph_traj), tum_poses(os.path.join(out, "trajectory.txt"))
         self.assertEqual(len(graph), FRAMES)
         self.assertEqual(len(offline), FRAMES)
         worst = 0.0

@@ -11,66 +11,26 @@ prior offline (SensorMotionPrior). Asserted: the graph used the prior, its poses
 ones (to the micrometre through the drive's start, within millimetres after: see below), and the prior
 holds the drive's start where the constant-velocity guess lags.
 """
-import csv
 import os
-import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import unittest
 
-import rospkg
 import rostest
-from ros_test_tools import tool
+from ros_test_tools import (hall1_d435_bag, largest_surge_error_mm, replay_and_evaluate,
+                            tum_poses)
 
 FRAMES = 75
-
-
-def poses(path):
-    return [[float(x) for x in l.split()] for l in open(path) if l.strip() and not l.startswith("#")]
-
-
-def largest_surge_error_mm(out_dir):
-    with open(os.path.join(out_dir, "frames.csv")) as f:
-        return max(abs(float(r["gt_errDz"])) for r in csv.DictReader(f))
 
 
 class MotionPrior(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="dt_motion_prior_")
-        root = os.path.dirname(os.path.realpath(rospkg.RosPack().get_path("depth_track")))
-        with open(os.path.join(root, "config", "scenarios", "Hall1.yaml")) as f:
-            text = f.read()
-        text = re.sub(r"^noise:\s*\S+", "noise: d435", text, count=1, flags=re.M)
-        text = re.sub(r"^name:\s*\S+", "name: Hall1_D435", text, count=1, flags=re.M)
-        scenario = os.path.join(cls.dir, "Hall1_D435.yaml")
-        with open(scenario, "w") as f:
-            f.write(text)
-        subprocess.run([tool("rig_drivers", "make_scenario_bag"), "--scenario", scenario,
-                        "--out-dir", cls.dir, "--max-frames", str(FRAMES), "--compression", "none"],
-                       check=True, stdout=subprocess.DEVNULL)
-        cls.bag = os.path.join(cls.dir, "Hall1_D435.bag")
+        cls.bag = hall1_d435_bag(cls.dir, "Hall1_D435", FRAMES, extra=())
         cls.graph_traj = os.path.join(cls.dir, "graph_trajectory.txt")
-        # Half rate: every frame reaches the graph in order even on a loaded machine. The D435
-        # scenario bags are in millimetres.
-        launch = subprocess.run(
-            ["roslaunch", os.path.join(root, "launch", "replay.launch"), "bag:=" + cls.bag,
-             "rate:=0.5", "depth_scale:=0.001", "motion_prior:=sensors",
-             "trajectory_path:=" + cls.graph_traj,
-             "map_path:=" + os.path.join(cls.dir, "graph_map.bt"),
-             "table_path:=" + os.path.join(cls.dir, "table.txt")],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-        cls.launch_log = launch.stdout
-        cls.runs = {}
-        for prior in ("sensors", "none"):
-            out = os.path.join(cls.dir, prior)
-            run = subprocess.run(
-                [tool("depth_track", "evaluate_bag"), cls.bag, "--out-dir", out, "--quiet",
-                 "--latency-scan", "0", "--motion-prior", prior],
-                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-            cls.runs[prior] = (run, out)
+        cls.launch_log, cls.runs = replay_and_evaluate(cls.dir, cls.bag, "sensors", ("sensors", "none"))
 
     @classmethod
     def tearDownClass(cls):
@@ -88,7 +48,7 @@ class MotionPrior(unittest.TestCase):
         # reading: the graph too falls back to constant velocity there).
         self.assertIn("motion prior: the sensors' motion guided %d of %d frames" % (FRAMES - 2, FRAMES),
                       report)
-        graph, offline = poses(self.graph_traj), poses(os.path.join(out, "trajectory.txt"))
+        graph, offline = tum_poses(self.graph_traj), tum_poses(os.path.join(out, "trajectory.txt"))
         self.assertEqual(len(graph), FRAMES)
         self.assertEqual(len(offline), FRAMES)
         # tf2 and the core interpolate between the readings in their own arithmetic (1e-12 m
