@@ -191,6 +191,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
                                    m->linear_acceleration.z);
     std::lock_guard<std::mutex> lock(imu_mutex_);
     if (imu_frame_.empty()) imu_frame_ = m->header.frame_id;
+    imu_last_stamp_s_ = s.stamp_s;
     imu_buffer_.push_back(s);
     if (imu_buffer_.size() > 20000) imu_buffer_.pop_front();  // 100 s at 200 Hz: nobody reads
   }
@@ -339,7 +340,11 @@ class RegistrationNodelet : public nodelet::Nodelet {
       {
         std::lock_guard<std::mutex> lock(imu_mutex_);
         frame = imu_frame_;
-        if ((!imu_buffer_.empty() && imu_buffer_.back().stamp_s >= t) ||
+        // Wait only for a stream that is running: none yet, or none for a second (an unplugged
+        // IMU), and the frame goes on at once.
+        const bool silent =
+            imu_buffer_.empty() ? imu_last_stamp_s_ < t - 1.0 : imu_buffer_.back().stamp_s < t - 1.0;
+        if ((!imu_buffer_.empty() && imu_buffer_.back().stamp_s >= t) || silent ||
             ros::WallTime::now() >= deadline) {
           while (!imu_buffer_.empty() && imu_buffer_.front().stamp_s <= t) {
             take.push_back(imu_buffer_.front());
@@ -799,6 +804,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   std::mutex imu_mutex_;
   std::string imu_frame_;
   std::deque<ImuSample> imu_buffer_;
+  double imu_last_stamp_s_ = -1e300;  // the latest reading's stamp (the buffer empties)
   std::optional<ImuMotionPrior> imu_;
   StampGuard guard_;
   std::atomic<bool> paused_{false};
