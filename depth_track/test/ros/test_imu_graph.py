@@ -22,6 +22,7 @@ from ros_test_tools import (hall1_d435_bag, largest_surge_error_mm, replay_and_e
                             tum_poses)
 
 FRAMES = 90
+SILENT_FRAMES = 30
 
 
 class ImuPrior(unittest.TestCase):
@@ -31,6 +32,12 @@ class ImuPrior(unittest.TestCase):
         cls.bag = hall1_d435_bag(cls.dir, "Hall1_D435_imu", FRAMES, extra=("--imu", "bmi055"), seed=6)
         cls.graph_traj = os.path.join(cls.dir, "graph_trajectory.txt")
         cls.launch_log, cls.runs = replay_and_evaluate(cls.dir, cls.bag, "imu", ("imu", "none"))
+        # The same start without an IMU on the bag (an unplugged IMU): the graph, asked for it,
+        # says so and tracks every frame with the constant-velocity guess.
+        cls.dir_silent = os.path.join(cls.dir, "silent")
+        os.makedirs(cls.dir_silent)
+        bag = hall1_d435_bag(cls.dir_silent, "Hall1_D435_no_imu", SILENT_FRAMES, seed=6)
+        cls.silent_log, cls.silent_runs = replay_and_evaluate(cls.dir_silent, bag, "imu", ("none",))
 
     @classmethod
     def tearDownClass(cls):
@@ -60,6 +67,17 @@ class ImuPrior(unittest.TestCase):
         print("graph against evaluate_bag: largest position difference %.4f mm" % (1e3 * worst))
         # Measured 2026-12-05: equal to the printed micrometre on every frame.
         self.assertLess(worst, 2e-6, "largest difference %.4f mm" % (1e3 * worst))
+
+    def test_without_readings_the_graph_says_so_and_tracks_at_constant_velocity(self):
+        self.assertIn("prior from the IMU on /camera/imu", self.silent_log)
+        self.assertIn("no reading came on /camera/imu", self.silent_log)
+        graph = tum_poses(os.path.join(self.dir_silent, "graph_trajectory.txt"))
+        run, out = self.silent_runs["none"]
+        self.assertEqual(run.returncode, 0, run.stdout[-2000:])
+        offline = tum_poses(os.path.join(out, "trajectory.txt"))
+        self.assertEqual(len(graph), SILENT_FRAMES)
+        for g, o in zip(graph, offline):
+            self.assertLess(max(abs(a - b) for a, b in zip(g[1:4], o[1:4])), 2e-6)
 
     def test_imu_holds_the_start_of_the_drive(self):
         # Measured 2026-12-05: 10.4 mm with the IMU, 755.8 mm with the constant-velocity guess.
