@@ -290,9 +290,7 @@ int main(int argc, char** argv) {
         } else {
           std::optional<Eigen::Isometry3d> guess;
           if (imu) {
-            while (imu_fed < imu_samples.size() &&
-                   imu_samples[imu_fed].stamp_s <= source->stamp(i))
-              imu->add(imu_samples[imu_fed++]);
+            imu_fed = imu->addUpTo(imu_samples, imu_fed, source->stamp(i));
             guess = imu->predict(source->stamp(i));
             imu_guesses += guess.has_value();
           }

@@ -5,6 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/se3.hpp"
 
 namespace depth_track {
@@ -69,6 +70,12 @@ void ImuMotionPrior::add(const ImuSample& s) {
   while (samples_.size() >= 2 && samples_[1].stamp_s <= keep_from) samples_.pop_front();
 }
 
+std::size_t ImuMotionPrior::addUpTo(const std::vector<ImuSample>& readings, std::size_t next,
+                                    double stamp_s) {
+  for (; next < readings.size() && readings[next].stamp_s <= stamp_s; ++next) add(readings[next]);
+  return next;
+}
+
 std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double t1,
                                                                const Eigen::Vector3d& bias) const {
   if (samples_.empty() || samples_.front().stamp_s > t0 || !(t1 > t0)) return std::nullopt;
@@ -81,7 +88,7 @@ std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double
     const bool has_next = k + 1 < samples_.size();
     const double next = has_next ? samples_[k + 1].stamp_s : t1;
     // The reading holds until the next one: a gap that long inside [t0, t1] is too long.
-    if ((has_next ? next : t1) - s.stamp_s > config_.max_gap_s) return std::nullopt;
+    if (next - s.stamp_s > config_.max_gap_s) return std::nullopt;
     const double b = std::min(next, t1);
     const double h = b - a;
     // Rotation at the piece's middle for the specific force; the piece's rotation exact.
@@ -121,7 +128,7 @@ std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp
   double keep = 1.0;
   if (config_.accel_significance > 0.0) {
     Eigen::Matrix<double, 3, 6> J;
-    J << I, -R0 * (-d->Jv / T);  // the bias's mean effect over the interval
+    J << I, R0 * d->Jv / T;  // the gravity error's and the bias's mean effect
     const Eigen::Matrix3d S = J * P_.bottomRightCorner<6, 6>() * J.transpose();
     const double tau = config_.accel_significance * std::sqrt(std::max(0.0, S.trace() / 3.0));
     const double a = dv.norm() / T;
@@ -164,11 +171,15 @@ std::optional<Eigen::Isometry3d> ImuMotionPrior::predict(double stamp_s) const {
 }
 
 bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
+  // Mean and spread of the window's readings in one pass (the spread is ~1e-2 of gravity: the
+  // squares lose nothing that matters in double).
   Eigen::Vector3d sum = Eigen::Vector3d::Zero(), gyro_sum = Eigen::Vector3d::Zero();
+  double sum_sq = 0.0;
   int n = 0;
   for (const ImuSample& s : samples_)
     if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s) {
       sum += s.accel_m_s2;
+      sum_sq += s.accel_m_s2.squaredNorm();
       gyro_sum += s.gyro_rad_s;
       ++n;
     }
@@ -178,11 +189,7 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
     return false;
   }
   const Eigen::Vector3d mean = sum / n;
-  double spread2 = 0.0;
-  for (const ImuSample& s : samples_)
-    if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s)
-      spread2 += (s.accel_m_s2 - mean).squaredNorm();
-  const double spread = std::sqrt(spread2 / n);
+  const double spread = std::sqrt(std::max(0.0, sum_sq / n - mean.squaredNorm()));
   if (std::abs(mean.norm() - kStandardGravity) > config_.gravity_tolerance * kStandardGravity) {
     reason_ = "the accelerometer reads " + fmt(mean.norm()) +
               " m/s^2 on average before the frame at " + fmt(stamp_s) +

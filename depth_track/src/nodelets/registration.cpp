@@ -183,12 +183,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   }
   /// IMU readings, buffered until the frame they reach is tracked.
   void onImu(const sensor_msgs::ImuConstPtr& m) {
-    ImuSample s;
-    s.stamp_s = m->header.stamp.toSec();
-    s.gyro_rad_s = Eigen::Vector3d(m->angular_velocity.x, m->angular_velocity.y,
-                                   m->angular_velocity.z);
-    s.accel_m_s2 = Eigen::Vector3d(m->linear_acceleration.x, m->linear_acceleration.y,
-                                   m->linear_acceleration.z);
+    const ImuSample s = conv::imuSampleFromMsg(*m);
     std::lock_guard<std::mutex> lock(imu_mutex_);
     if (imu_frame_.empty()) imu_frame_ = m->header.frame_id;
     imu_last_stamp_s_ = s.stamp_s;
@@ -340,11 +335,9 @@ class RegistrationNodelet : public nodelet::Nodelet {
       {
         std::lock_guard<std::mutex> lock(imu_mutex_);
         frame = imu_frame_;
-        // Wait only for a stream that is running: none yet, or none for a second (an unplugged
-        // IMU), and the frame goes on at once.
-        const bool silent =
-            imu_buffer_.empty() ? imu_last_stamp_s_ < t - 1.0 : imu_buffer_.back().stamp_s < t - 1.0;
-        if ((!imu_buffer_.empty() && imu_buffer_.back().stamp_s >= t) || silent ||
+        // A reading at or after the stamp has come; or none for a second (an unplugged IMU, or
+        // none yet): the frame goes on at once.
+        if (imu_last_stamp_s_ >= t || imu_last_stamp_s_ < t - 1.0 ||
             ros::WallTime::now() >= deadline) {
           while (!imu_buffer_.empty() && imu_buffer_.front().stamp_s <= t) {
             take.push_back(imu_buffer_.front());
@@ -804,7 +797,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
   std::mutex imu_mutex_;
   std::string imu_frame_;
   std::deque<ImuSample> imu_buffer_;
-  double imu_last_stamp_s_ = -1e300;  // the latest reading's stamp (the buffer empties)
+  double imu_last_stamp_s_ = -1e300;  // the latest reading's stamp (the buffer is emptied)
   std::optional<ImuMotionPrior> imu_;
   StampGuard guard_;
   std::atomic<bool> paused_{false};

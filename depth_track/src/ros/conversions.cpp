@@ -389,6 +389,15 @@ Eigen::Isometry3d fromParts(double x, double y, double z, double qx, double qy, 
 }
 }  // namespace
 
+ImuSample imuSampleFromMsg(const sensor_msgs::Imu& m) {
+  ImuSample s;
+  s.stamp_s = m.header.stamp.toSec();
+  s.gyro_rad_s = Eigen::Vector3d(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z);
+  s.accel_m_s2 =
+      Eigen::Vector3d(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z);
+  return s;
+}
+
 Eigen::Isometry3d fromPoseMsg(const geometry_msgs::Pose& p) {
   return fromParts(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
                    p.orientation.z, p.orientation.w, "pose");

@@ -77,3 +77,17 @@ def largest_surge_error_mm(out_dir):
 
     with open(os.path.join(out_dir, "frames.csv")) as f:
         return max(abs(float(r["gt_errDz"])) for r in csv.DictReader(f))
+
+
+def position_differences(graph, offline):
+    """Frame by frame, the largest position difference (m) of two trajectories as tum_poses
+    reads them (the graph's, an offline tool's); raises AssertionError when a frame's stamps
+    differ by more than 1e-6 s or the two hold different numbers of frames."""
+    if len(graph) != len(offline):
+        raise AssertionError("%d frames against %d" % (len(graph), len(offline)))
+    diffs = []
+    for k, (g, o) in enumerate(zip(graph, offline)):
+        if abs(g[0] - o[0]) > 1e-6:
+            raise AssertionError("frame %d: stamp %.6f against %.6f" % (k, g[0], o[0]))
+        diffs.append(max(abs(a - b) for a, b in zip(g[1:4], o[1:4])))
+    return diffs

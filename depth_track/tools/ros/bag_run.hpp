@@ -294,12 +294,8 @@ inline ImuStream readImu(rosbag::Bag& bag, const std::string& topic) {
     const auto msg = m.instantiate<sensor_msgs::Imu>();
     if (!msg) continue;
     if (out.frame_id.empty()) out.frame_id = msg->header.frame_id;
-    ImuSample s;
+    ImuSample s = conv::imuSampleFromMsg(*msg);
     s.stamp_s = detail::stampOf(msg->header, m);
-    s.gyro_rad_s = Eigen::Vector3d(msg->angular_velocity.x, msg->angular_velocity.y,
-                                   msg->angular_velocity.z);
-    s.accel_m_s2 = Eigen::Vector3d(msg->linear_acceleration.x, msg->linear_acceleration.y,
-                                   msg->linear_acceleration.z);
     if (!std::isfinite(s.stamp_s) || !s.gyro_rad_s.allFinite() || !s.accel_m_s2.allFinite() ||
         (!out.samples.empty() && !(s.stamp_s > out.samples.back().stamp_s))) {
       ++out.left_out;

@@ -638,8 +638,7 @@ int main(int argc, char** argv) {
           std::optional<Eigen::Isometry3d> prior;
           if (sensor_prior) prior = sensor_prior->next(stamp);
           if (imu_prior) {
-            while (imu_fed < imu.samples.size() && imu.samples[imu_fed].stamp_s <= stamp)
-              imu_prior->add(imu.samples[imu_fed++]);
+            imu_fed = imu_prior->addUpTo(imu.samples, imu_fed, stamp);
             prior = imu_prior->predict(stamp);
           }
           const FrameStatus st = tracker.track(depth, stamp, prior);

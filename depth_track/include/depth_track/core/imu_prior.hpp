@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "depth_track/core/cell_odometry.hpp"
-
 namespace depth_track {
+
+struct FrameStatus;  // cell_odometry.hpp
 
 /// The covariance of a tracked frame's camera position in the world frame (m^2): the
 /// translation block of its registration's covariance turned from the reference frame into the
@@ -80,6 +80,10 @@ class ImuMotionPrior {
   /// Adds a reading. Throws std::invalid_argument for a non-finite value or a stamp not after
   /// the last reading's; the prior is then unchanged.
   void add(const ImuSample& sample);
+
+  /// Adds readings[next], readings[next + 1], ... up to those stamped stamp_s and returns the
+  /// index of the first left (a recorded stream fed frame by frame). Throws as add().
+  std::size_t addUpTo(const std::vector<ImuSample>& readings, std::size_t next, double stamp_s);
 
   /// The camera's motion T_Cprev_Ccur from the last frame given to update() to stamp_s; nullopt
   /// before the prior has started (see reason()), for a stamp not after that frame's, or when the

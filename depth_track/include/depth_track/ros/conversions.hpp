@@ -9,6 +9,7 @@
 #include <rig_msgs/NoiseCalibration.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/Header.h>
 
@@ -19,6 +20,7 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/cells.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/imu_prior.hpp"
 #include "depth_track/core/noise_model.hpp"
 
 namespace depth_track {
@@ -43,6 +45,10 @@ sensor_msgs::ImagePtr depthToMsg(const DepthImage& depth, const std_msgs::Header
 /// through a hue wheel, black where there is no return ("rgb8").
 sensor_msgs::ImagePtr falseColourDepth(const DepthImage& depth, const std_msgs::Header& header,
                                        double band_m = 0.05);
+
+/// An IMU message's reading (header stamp, angular velocity, linear acceleration; the
+/// orientation is not read). Values are copied as they are: ImuMotionPrior::add checks them.
+ImuSample imuSampleFromMsg(const sensor_msgs::Imu& m);
 
 /// Intrinsics of a rectified image from camera_info (the projection matrix P, or K when P is
 /// zero). Throws DepthInputError for an uncalibrated camera (zero focal lengths), a zero image
