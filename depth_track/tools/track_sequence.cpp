@@ -316,7 +316,7 @@ int main(int argc, char** argv) {
             if (verbose && mf.loop_attempted)
               std::printf("%5zu loop closure: %s\n", i, mf.loop.reason.c_str());
           }
-          if (imu) imu->update(source->stamp(i), tracker.pose(), positionCovariance(st));
+          if (imu) imu->update(source->stamp(i), tracker.pose(), trackedPoseCovariance(st));
         }
       } catch (const std::exception& e) {  // unreadable or wrong-size frame: flag it, go on
         ++bad_frames;

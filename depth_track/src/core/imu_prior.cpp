@@ -13,6 +13,11 @@ namespace depth_track {
 namespace {
 constexpr double kStandardGravity = 9.80665;  // m/s^2
 
+Eigen::Vector3d rotationVector(const Eigen::Matrix3d& R) {
+  const Eigen::AngleAxisd aa(R);
+  return aa.angle() * aa.axis();
+}
+
 std::string fmt(double x) {
   std::ostringstream s;
   s << x;
@@ -43,6 +48,10 @@ std::vector<std::string> ImuPriorConfig::validate() const {
                 fmt(unmodelled_accel_m_s2));
   if (!(position_floor_m > 0.0 && position_floor_m < 1.0))
     p.push_back("position_floor_m must be in (0, 1) m, got " + fmt(position_floor_m));
+  if (!(rotation_floor_rad > 0.0 && rotation_floor_rad < 0.1))
+    p.push_back("rotation_floor_rad must be in (0, 0.1) rad, got " + fmt(rotation_floor_rad));
+  if (!(gyro_bias_walk > 0.0 && gyro_bias_walk < 0.1))
+    p.push_back("gyro_bias_walk must be in (0, 0.1) rad/s/sqrt(s), got " + fmt(gyro_bias_walk));
   if (!(max_gap_s > 0.0 && max_gap_s <= 1.0))
     p.push_back("max_gap_s must be in (0, 1] s, got " + fmt(max_gap_s));
   return p;
@@ -93,6 +102,8 @@ std::optional<ImuMotionPrior::Delta> ImuMotionPrior::integrate(double t0, double
     const double h = b - a;
     // Rotation at the piece's middle for the specific force; the piece's rotation exact.
     const Eigen::Vector3d w = s.gyro_rad_s - gyro_bias_;
+    if (a == t0) d.w0 = w;
+    d.w1 = w;
     const Eigen::Matrix3d R_mid = d.R * expSO3(0.5 * h * w);
     const Eigen::Vector3d f = R_mid * (s.accel_m_s2 - bias);
     d.p += d.v * h + 0.5 * f * h * h;
@@ -125,19 +136,29 @@ std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp
   // told from moving at a constant velocity and is taken as that much smaller (a soft
   // threshold), so that over seconds of a view that cannot correct it the error does not run.
   const Eigen::Vector3d dv = g * T + R0 * d->v;
+  // The IMU point's motion has a part the camera's lacks: the lever arm r (the camera's origin
+  // in the IMU frame) turning with the rig, v_C = v_I + R (w x r). It is known exactly from the
+  // gyro, so the threshold below judges the camera's acceleration, with that part taken out
+  // (L_v, L_p) and added back whole.
+  const Eigen::Vector3d r = config_.T_C_I.inverse().translation();
+  const Eigen::Matrix3d R1 = R0 * d->R;
+  const Eigen::Vector3d L_v = R1 * d->w1.cross(r) - R0 * d->w0.cross(r);
+  const Eigen::Vector3d L_p = R1 * r - R0 * r - R0 * d->w0.cross(r) * T;
+  const Eigen::Vector3d A_v = dv + L_v;
+  const Eigen::Vector3d A_p = 0.5 * g * T * T + R0 * d->p + L_p;
   double keep = 1.0;
   if (config_.accel_significance > 0.0) {
     Eigen::Matrix<double, 3, 6> J;
     J << I, R0 * d->Jv / T;  // the gravity error's and the bias's mean effect
     const Eigen::Matrix3d S = J * P_.bottomRightCorner<6, 6>() * J.transpose();
     const double tau = config_.accel_significance * std::sqrt(std::max(0.0, S.trace() / 3.0));
-    const double a = dv.norm() / T;
+    const double a = A_v.norm() / T;
     keep = a > tau ? (a - tau) / a : 0.0;
   }
   Propagated out;
   out.x = x_;
-  out.x.head<3>() = p0 + v0 * T + keep * (0.5 * g * T * T + R0 * d->p);
-  out.x.segment<3>(3) = v0 + keep * dv;
+  out.x.head<3>() = p0 + v0 * T + keep * A_p - L_p;
+  out.x.segment<3>(3) = v0 + keep * A_v - L_v;
   Matrix12d F = Matrix12d::Identity();
   F.block<3, 3>(0, 3) = T * I;
   F.block<3, 3>(0, 6) = keep * 0.5 * T * T * I;
@@ -174,13 +195,14 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   // Mean and spread of the window's readings in one pass (the spread is ~1e-2 of gravity: the
   // squares lose nothing that matters in double).
   Eigen::Vector3d sum = Eigen::Vector3d::Zero(), gyro_sum = Eigen::Vector3d::Zero();
-  double sum_sq = 0.0;
+  double sum_sq = 0.0, gyro_sum_sq = 0.0;
   int n = 0;
   for (const ImuSample& s : samples_)
     if (s.stamp_s <= stamp_s && s.stamp_s >= stamp_s - config_.init_window_s) {
       sum += s.accel_m_s2;
       sum_sq += s.accel_m_s2.squaredNorm();
       gyro_sum += s.gyro_rad_s;
+      gyro_sum_sq += s.gyro_rad_s.squaredNorm();
       ++n;
     }
   if (n < 2) {
@@ -208,8 +230,11 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   // error starts fully correlated with its bias, and as the camera turns the two part.
   const Eigen::Matrix3d R0 = (T_W_C * config_.T_C_I).linear();
   g_W_ = -(R0 * mean);
-  // Still, the gyro reads its bias.
+  // Still, the gyro reads its bias; a sway's mean rate reads as bias too, so the estimate is
+  // uncertain by the readings' spread (per axis), which the tracked rotations then correct.
   gyro_bias_ = gyro_sum / n;
+  const double gyro_spread2 = std::max(0.0, gyro_sum_sq / n - gyro_bias_.squaredNorm()) / 3.0;
+  gyro_bias_P_ = std::max(gyro_spread2, 1e-8) * Eigen::Matrix3d::Identity();
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
   P_.setZero();
@@ -231,11 +256,11 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
 }
 
 bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
-                            const std::optional<Eigen::Matrix3d>& position_cov_W) {
+                            const std::optional<Matrix6d>& pose_cov_W) {
   if (!std::isfinite(stamp_s) || !isRigid(T_W_C, 1e-3))
     throw std::invalid_argument("IMU prior: frame pose at " + fmt(stamp_s) +
                                 " s is not finite or not rigid");
-  if (position_cov_W && !position_cov_W->allFinite())
+  if (pose_cov_W && !pose_cov_W->allFinite())
     throw std::invalid_argument("IMU prior: position covariance at " + fmt(stamp_s) +
                                 " s is not finite");
   if (!started_) {
@@ -248,8 +273,25 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
     if (const auto next = propagate(stamp_s)) {
       x_ = next->x;
       P_ = next->P;
-      if (position_cov_W) {
-        const Eigen::Matrix3d S = P_.block<3, 3>(0, 0) + *position_cov_W +
+      const double T = stamp_s - last_stamp_s_;
+      gyro_bias_P_ += config_.gyro_bias_walk * config_.gyro_bias_walk * T *
+                      Eigen::Matrix3d::Identity();
+      if (pose_cov_W) {
+        // The gyro's bias from the tracked rotation: the readings less a bias off by db turn
+        // the IMU by about -db T more than the tracker saw (residual in the IMU frame).
+        const Eigen::Matrix3d R_C_I = config_.T_C_I.linear();
+        const Eigen::Matrix3d R_W_I1 = T_W_C.linear() * R_C_I;
+        const Eigen::Vector3d r =
+            rotationVector((next->T_W_C.linear() * R_C_I).transpose() * R_W_I1);
+        const Eigen::Matrix3d Rm =
+            R_W_I1.transpose() * pose_cov_W->topLeftCorner<3, 3>() * R_W_I1 +
+            config_.rotation_floor_rad * config_.rotation_floor_rad * Eigen::Matrix3d::Identity();
+        const Eigen::Matrix3d Sg = T * T * gyro_bias_P_ + Rm;
+        const Eigen::Matrix3d Kg = -T * gyro_bias_P_ * Sg.inverse();
+        gyro_bias_ += Kg * r;  // r measures -(bias - estimate) T
+        gyro_bias_P_ += T * Kg * gyro_bias_P_;
+        gyro_bias_P_ = 0.5 * (gyro_bias_P_ + gyro_bias_P_.transpose());
+        const Eigen::Matrix3d S = P_.block<3, 3>(0, 0) + pose_cov_W->bottomRightCorner<3, 3>() +
                                   config_.position_floor_m * config_.position_floor_m *
                                       Eigen::Matrix3d::Identity();
         const Eigen::Matrix<double, 12, 3> K = P_.leftCols<3>() * S.inverse();
@@ -257,7 +299,7 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
         P_ -= K * P_.topRows<3>();
         P_ = 0.5 * (P_ + P_.transpose());
       }
-    } else if (position_cov_W) {
+    } else if (pose_cov_W) {
       // Readings missing over the interval: the velocity from the depth alone; the filter
       // starts again from the tracked position with its velocity uncertain.
       const Eigen::Vector3d p_last = x_.head<3>();
@@ -272,10 +314,11 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
   return true;
 }
 
-std::optional<Eigen::Matrix3d> positionCovariance(const FrameStatus& status) {
+std::optional<Matrix6d> trackedPoseCovariance(const FrameStatus& status) {
   if (!status.tracked) return std::nullopt;
-  const Eigen::Matrix3d R = status.T_W_Cref.linear();
-  return R * status.covariance.block<3, 3>(3, 3) * R.transpose();
+  Matrix6d R = Matrix6d::Zero();
+  R.topLeftCorner<3, 3>() = R.bottomRightCorner<3, 3>() = status.T_W_Cref.linear();
+  return R * status.covariance * R.transpose();
 }
 
 }  // namespace depth_track

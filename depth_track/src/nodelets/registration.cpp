@@ -78,6 +78,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
     imu_config_.unmodelled_accel_m_s2 = r.getDouble("imu_unmodelled_accel");
     imu_config_.accel_significance = r.getDouble("imu_accel_significance");
     imu_config_.position_floor_m = r.getDouble("imu_position_floor");
+    imu_config_.rotation_floor_rad = r.getDouble("imu_rotation_floor");
+    imu_config_.gyro_bias_walk = r.getDouble("imu_gyro_bias_walk");
     imu_timeout_s_ = r.getDouble("imu_timeout");
     static_tf_timeout_s_ = r.getDouble("static_tf_timeout");
     publish_tf_ = r.getBool("publish_tf");
@@ -479,7 +481,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       if (imu_) {
         try {
-          imu_->update(h.stamp.toSec(), odometry_->pose(), positionCovariance(st));
+          imu_->update(h.stamp.toSec(), odometry_->pose(), trackedPoseCovariance(st));
           if (!imu_->started())
             NODELET_WARN_THROTTLE(5.0, "registration: the IMU prior has not started: %s",
                                   imu_->reason().c_str());

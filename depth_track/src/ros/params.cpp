@@ -180,6 +180,12 @@ std::vector<NodeParamSpec> makeParams() {
     p.push_back(num("registration", "imu_position_floor", "m",
                     "added to a tracked position's standard deviation in the IMU filter",
                     d.position_floor_m, 1e-5, 0.99));
+    p.push_back(num("registration", "imu_rotation_floor", "rad",
+                    "added to a tracked rotation's standard deviation per frame when it "
+                    "corrects the gyro's bias",
+                    d.rotation_floor_rad, 1e-6, 0.099));
+    p.push_back(num("registration", "imu_gyro_bias_walk", "rad/s/sqrt(s)",
+                    "random walk of the gyro's bias", d.gyro_bias_walk, 1e-7, 0.099));
     p.push_back(num("registration", "imu_timeout", "s",
                     "wait this long for an IMU reading at or after a frame's stamp", 0.05, 0.0,
                     10.0));

@@ -672,7 +672,7 @@ int main(int argc, char** argv) {
             }
             f.ms_map = msSince(tm);
           }
-          if (imu_prior) imu_prior->update(stamp, tracker.pose(), positionCovariance(st));
+          if (imu_prior) imu_prior->update(stamp, tracker.pose(), trackedPoseCovariance(st));
           f.cpu_ms = cpuMs() - cpu0;
         } catch (const std::exception& e) {  // wrong encoding or size: flag the frame, go on
           ++bad_frames;

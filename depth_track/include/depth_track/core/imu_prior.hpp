@@ -16,10 +16,10 @@ namespace depth_track {
 
 struct FrameStatus;  // cell_odometry.hpp
 
-/// The covariance of a tracked frame's camera position in the world frame (m^2): the
-/// translation block of its registration's covariance turned from the reference frame into the
-/// world; nullopt for a frame not tracked.
-std::optional<Eigen::Matrix3d> positionCovariance(const FrameStatus& status);
+/// The covariance of a tracked frame's camera pose in the world frame, [rotation (rad);
+/// position (m)]: its registration's covariance turned from the reference frame into the world
+/// (large along a direction the view did not fix); nullopt for a frame not tracked.
+std::optional<Eigen::Matrix<double, 6, 6>> trackedPoseCovariance(const FrameStatus& status);
 
 /// One IMU reading in the IMU's own frame. The accelerometer reads specific force: acceleration
 /// minus gravity, so +9.81 m/s^2 upwards when at rest. A reading holds from its stamp to the
@@ -65,6 +65,13 @@ struct ImuPriorConfig {
   /// Standard deviation added to a tracked position's own (the registration's covariance, which
   /// the basin probe widens along a direction it could not confirm), m.
   double position_floor_m = 0.002;
+  /// The gyro's bias starts as its mean over the still window, uncertain by the readings' spread
+  /// there (a swaying start: the sway's mean rate is no bias); each tracked frame's rotation
+  /// then corrects it, the registration's rotation covariance plus this floor (rad per frame)
+  /// as the measurement's noise.
+  double rotation_floor_rad = 0.0005;
+  /// Random walk of the gyro's bias, rad/s per sqrt(s).
+  double gyro_bias_walk = 0.0001;
   /// Longest interval without a reading that is integrated across (seconds); a frame whose span
   /// has a longer gap gets no prior.
   double max_gap_s = 0.05;
@@ -92,13 +99,13 @@ class ImuMotionPrior {
   std::optional<Eigen::Isometry3d> predict(double stamp_s) const;
 
   /// A frame's pose as the tracker left it (T_W_C) and, when it was tracked, the covariance of
-  /// its position in the world frame (m^2; positionCovariance of its FrameStatus); nullopt: not
-  /// tracked. The first call starts the prior when the readings before it show a still camera
+  /// its pose in the world frame ([rotation; position], trackedPoseCovariance of its FrameStatus);
+  /// nullopt: not tracked. The first call starts the prior when the readings before it show a still camera
   /// (gravity from their mean, velocity zero); until then it returns false and reason() says
   /// why. Later calls carry the filter across the interval and, for a tracked frame, correct
   /// it by the tracked position. Returns whether the prior has started.
   bool update(double stamp_s, const Eigen::Isometry3d& T_W_C,
-              const std::optional<Eigen::Matrix3d>& position_cov_W);
+              const std::optional<Eigen::Matrix<double, 6, 6>>& pose_cov_W);
 
   bool started() const { return started_; }
   /// Why the prior has not started, or "" once it has.
@@ -109,7 +116,8 @@ class ImuMotionPrior {
   Eigen::Vector3d velocity() const { return x_.segment<3>(3); }
   /// The gravity error as estimated, world frame (m/s^2).
   Eigen::Vector3d gravityError() const { return x_.segment<3>(6); }
-  /// The gyro's bias: its mean reading over the still start (rad/s, IMU frame).
+  /// The gyro's bias as estimated: its mean over the still start, then corrected by the tracked
+  /// rotations (rad/s, IMU frame).
   const Eigen::Vector3d& gyroBias() const { return gyro_bias_; }
   /// The accelerometer's bias as estimated, IMU frame (m/s^2).
   Eigen::Vector3d accelBias() const { return x_.tail<3>(); }
@@ -125,6 +133,8 @@ class ImuMotionPrior {
     Eigen::Vector3d p = Eigen::Vector3d::Zero();      // position change in I0, nor v0 * dt
     Eigen::Matrix3d Jv = Eigen::Matrix3d::Zero();     // d v / d bias
     Eigen::Matrix3d Jp = Eigen::Matrix3d::Zero();     // d p / d bias
+    Eigen::Vector3d w0 = Eigen::Vector3d::Zero();     // rate at t0, I0 (gyro bias taken off)
+    Eigen::Vector3d w1 = Eigen::Vector3d::Zero();     // rate at t1, I1
   };
   /// The readings over [t0, t1], less the accelerometer bias `bias`.
   std::optional<Delta> integrate(double t0, double t1, const Eigen::Vector3d& bias) const;
@@ -142,7 +152,8 @@ class ImuMotionPrior {
   bool started_ = false;
   std::string reason_ = "no frame yet";
   Eigen::Vector3d g_W_ = Eigen::Vector3d::Zero();
-  Eigen::Vector3d gyro_bias_ = Eigen::Vector3d::Zero();  // the mean rate of the still start
+  Eigen::Vector3d gyro_bias_ = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d gyro_bias_P_ = Eigen::Matrix3d::Zero();  // its covariance
   // The IMU point's position and velocity (world), gravity error (world), accelerometer bias (IMU).
   Vector12d x_ = Vector12d::Zero();
   Matrix12d P_ = Matrix12d::Zero();
