@@ -261,7 +261,7 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
     throw std::invalid_argument("IMU prior: frame pose at " + fmt(stamp_s) +
                                 " s is not finite or not rigid");
   if (pose_cov_W && !pose_cov_W->allFinite())
-    throw std::invalid_argument("IMU prior: position covariance at " + fmt(stamp_s) +
+    throw std::invalid_argument("IMU prior: pose covariance at " + fmt(stamp_s) +
                                 " s is not finite");
   if (!started_) {
     if (!start(stamp_s, T_W_C)) return false;
@@ -287,10 +287,15 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
             R_W_I1.transpose() * pose_cov_W->topLeftCorner<3, 3>() * R_W_I1 +
             config_.rotation_floor_rad * config_.rotation_floor_rad * Eigen::Matrix3d::Identity();
         const Eigen::Matrix3d Sg = T * T * gyro_bias_P_ + Rm;
-        const Eigen::Matrix3d Kg = -T * gyro_bias_P_ * Sg.inverse();
-        gyro_bias_ += Kg * r;  // r measures -(bias - estimate) T
-        gyro_bias_P_ += T * Kg * gyro_bias_P_;
-        gyro_bias_P_ = 0.5 * (gyro_bias_P_ + gyro_bias_P_.transpose());
+        const Eigen::Matrix3d Sg_inv = Sg.inverse();
+        // A jump of the tracked pose (a relocalisation, a loop closure's correction) is no
+        // measure of the gyro: a residual beyond 5 sigmas leaves the bias alone.
+        if (r.dot(Sg_inv * r) <= 25.0) {
+          const Eigen::Matrix3d Kg = -T * gyro_bias_P_ * Sg_inv;
+          gyro_bias_ += Kg * r;  // r measures -(bias - estimate) T
+          gyro_bias_P_ += T * Kg * gyro_bias_P_;
+          gyro_bias_P_ = 0.5 * (gyro_bias_P_ + gyro_bias_P_.transpose());
+        }
         const Eigen::Matrix3d S = P_.block<3, 3>(0, 0) + pose_cov_W->bottomRightCorner<3, 3>() +
                                   config_.position_floor_m * config_.position_floor_m *
                                       Eigen::Matrix3d::Identity();
