@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <optional>
 
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/imu_prior.hpp"
@@ -25,6 +26,26 @@ Eigen::Isometry3d imuMount() {
 
 Matrix6d smallCov() { return Matrix6d::Identity() * 1e-8; }
 
+// A rendered run read by an exact IMU at imuMount(), and the prior fed frame by frame.
+struct ExactImu {
+  sim::RenderedRun run;
+  ImuPriorConfig cfg;
+  std::vector<ImuSample> samples;
+  std::optional<ImuMotionPrior> prior;
+  std::size_t fed = 0;
+  explicit ExactImu(const std::string& name, double accel_significance) : run(sim::makeRun(name)) {
+    cfg.T_C_I = imuMount();
+    cfg.accel_significance = accel_significance;
+    samples = sim::simulateImu(run, cfg.T_C_I, sim::ImuNoiseConfig::none(), 1);
+    prior.emplace(cfg);
+  }
+  // Gives the prior the readings up to frame i; returns its stamp.
+  double feed(std::size_t i) {
+    fed = prior->addUpTo(samples, fed, run.stamps_s[i]);
+    return run.stamps_s[i];
+  }
+};
+
 }  // namespace
 
 namespace {
@@ -36,18 +57,13 @@ struct GuessErrors {
 // The prior over a rendered run, given the true poses as the tracked ones (with exact readings):
 // the error of its guess for each next frame against the true motion.
 GuessErrors guessErrors(const std::string& name) {
-  const sim::RenderedRun run = sim::makeRun(name);
-  ImuPriorConfig cfg;
-  cfg.T_C_I = imuMount();
-  cfg.accel_significance = 0.0;  // the integration itself (the soft threshold: its own test)
-  const auto samples = sim::simulateImu(run, cfg.T_C_I, sim::ImuNoiseConfig::none(), 1);
-  EXPECT_GE(samples.size(), static_cast<std::size_t>((run.stamps_s.back() + 0.5) * 200));
-  ImuMotionPrior prior(cfg);
-  std::size_t fed = 0;
+  ExactImu x(name, 0.0);  // the integration itself (the soft threshold: its own test)
+  const sim::RenderedRun& run = x.run;
+  ImuMotionPrior& prior = *x.prior;
+  EXPECT_GE(x.samples.size(), static_cast<std::size_t>((run.stamps_s.back() + 0.5) * 200));
   GuessErrors out;
   for (std::size_t i = 0; i < run.size(); ++i) {
-    const double t = run.stamps_s[i];
-    fed = prior.addUpTo(samples, fed, t);
+    const double t = x.feed(i);
     const auto guess = prior.predict(t);
     EXPECT_EQ(guess.has_value(), i > 0) << name << " frame " << i;
     if (guess) {
@@ -127,18 +143,14 @@ TEST(ImuPrior, ASwayingStartIsCorrectedByTheTrackedPositions) {
 // is 0.035 m/s^2 off, see above). Thresholding the IMU point's acceleration instead (the
 // version before 2026-12-05's evening) cut the lever arm's part and ended 148 mm off.
 TEST(ImuPrior, ALeverArmTurningWithTheRigIsNoAcceleration) {
-  const sim::RenderedRun run = sim::makeRun("wall_slide");
-  ImuPriorConfig cfg;
-  cfg.T_C_I = imuMount();
-  const auto samples = sim::simulateImu(run, cfg.T_C_I, sim::ImuNoiseConfig::none(), 1);
-  ImuMotionPrior prior(cfg);
-  std::size_t fed = 0;
+  ExactImu x("wall_slide", ImuPriorConfig{}.accel_significance);
+  const sim::RenderedRun& run = x.run;
+  ImuMotionPrior& prior = *x.prior;
   const auto frameAt = [](double t) { return static_cast<std::size_t>(std::lround(t * 30.0)); };
   const std::size_t a = frameAt(2.4), b = frameAt(5.4);
   Eigen::Isometry3d held = Eigen::Isometry3d::Identity();
   for (std::size_t i = 0; i <= b; ++i) {
-    const double t = run.stamps_s[i];
-    fed = prior.addUpTo(samples, fed, t);
+    const double t = x.feed(i);
     if (i <= a) {
       ASSERT_TRUE(prior.update(t, run.T_W_C[i], smallCov())) << prior.reason();
       held = run.T_W_C[i];
@@ -165,16 +177,12 @@ TEST(ImuPrior, ALeverArmTurningWithTheRigIsNoAcceleration) {
 // readings and the true poses, one frame given 1 deg off about the vertical. Without the
 // 5-sigma gate the bias takes a share of the 0.017 rad residual and this test fails (checked).
 TEST(ImuPrior, ATrackedPoseJumpIsNotAGyroBias) {
-  const sim::RenderedRun run = sim::makeRun("room3");
-  ImuPriorConfig cfg;
-  cfg.T_C_I = imuMount();
-  const auto samples = sim::simulateImu(run, cfg.T_C_I, sim::ImuNoiseConfig::none(), 1);
-  ImuMotionPrior prior(cfg);
-  std::size_t fed = 0;
+  ExactImu x("room3", ImuPriorConfig{}.accel_significance);
+  const sim::RenderedRun& run = x.run;
+  ImuMotionPrior& prior = *x.prior;
   Eigen::Vector3d before = Eigen::Vector3d::Zero();
   for (std::size_t i = 0; i <= 150; ++i) {
-    const double t = run.stamps_s[i];
-    fed = prior.addUpTo(samples, fed, t);
+    const double t = x.feed(i);
     Eigen::Isometry3d pose = run.T_W_C[i];
     if (i == 150) {
       before = prior.gyroBias();
