@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "depth_track/core/angles.hpp"
+#include "depth_track/core/se3.hpp"
 
 namespace depth_track {
 
@@ -27,11 +28,6 @@ void checkPairs(std::size_t est, std::size_t gt, std::size_t min_count, const ch
                                 std::to_string(min_count) + " associated poses, got " +
                                 std::to_string(est));
   }
-}
-
-Eigen::Vector3d rotationVector(const Eigen::Matrix3d& R) {
-  const Eigen::AngleAxisd aa(R);
-  return aa.angle() * aa.axis();
 }
 
 double wrapDeg(double a) {
@@ -168,7 +164,7 @@ std::vector<FrameError> frameErrors(const std::vector<Eigen::Isometry3d>& est,
     const Eigen::Isometry3d e = T_C0_W_est * est[i];  // T_S_C of the estimate
     const Eigen::Isometry3d g = T_C0_W_gt * gt[i];
     FrameError& f = out[i];
-    f.rot_err_deg = rotationVector(g.rotation().transpose() * e.rotation()) * kRadToDeg;
+    f.rot_err_deg = logSO3(g.rotation().transpose() * e.rotation()) * kRadToDeg;
     f.pos_est_mm = 1000.0 * e.translation();
     f.pos_gt_mm = 1000.0 * g.translation();
     f.pos_err_mm = f.pos_est_mm - f.pos_gt_mm;

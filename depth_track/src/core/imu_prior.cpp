@@ -13,11 +13,6 @@ namespace depth_track {
 namespace {
 constexpr double kStandardGravity = 9.80665;  // m/s^2
 
-Eigen::Vector3d rotationVector(const Eigen::Matrix3d& R) {
-  const Eigen::AngleAxisd aa(R);
-  return aa.angle() * aa.axis();
-}
-
 std::string fmt(double x) {
   std::ostringstream s;
   s << x;
@@ -282,7 +277,7 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
         const Eigen::Matrix3d R_C_I = config_.T_C_I.linear();
         const Eigen::Matrix3d R_W_I1 = T_W_C.linear() * R_C_I;
         const Eigen::Vector3d r =
-            rotationVector((next->T_W_C.linear() * R_C_I).transpose() * R_W_I1);
+            logSO3((next->T_W_C.linear() * R_C_I).transpose() * R_W_I1);
         const Eigen::Matrix3d Rm =
             R_W_I1.transpose() * pose_cov_W->topLeftCorner<3, 3>() * R_W_I1 +
             config_.rotation_floor_rad * config_.rotation_floor_rad * Eigen::Matrix3d::Identity();

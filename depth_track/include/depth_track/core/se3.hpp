@@ -23,6 +23,12 @@ inline Eigen::Matrix3d expSO3(const Eigen::Vector3d& omega) {
   return Eigen::AngleAxisd(theta, omega / theta).toRotationMatrix();
 }
 
+/// Rotation vector of a rotation matrix (the inverse of expSO3; angle in [0, pi], radians).
+inline Eigen::Vector3d logSO3(const Eigen::Matrix3d& R) {
+  const Eigen::AngleAxisd aa(R);
+  return aa.angle() * aa.axis();
+}
+
 /// Increment xi = [omega (rad); v (m)] applied as an exact rigid transform: rotation exp(omega)
 /// and translation v (the "rotation then translate" parameterisation used by the linearised
 /// point-to-plane solve, where p' = R p + t with R ~ I + [omega]x).

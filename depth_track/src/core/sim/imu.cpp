@@ -85,8 +85,7 @@ std::vector<ImuSample> simulateImu(const std::function<Eigen::Isometry3d(double)
     const Eigen::Isometry3d A = T_W_I(t), B = T_W_I(t + dt), M = T_W_I(t + 0.5 * dt);
     ImuSample s;
     s.stamp_s = t;
-    const Eigen::AngleAxisd turn(A.linear().transpose() * B.linear());
-    s.gyro_rad_s = turn.angle() * turn.axis() / dt;
+    s.gyro_rad_s = logSO3(A.linear().transpose() * B.linear()) / dt;
     const Eigen::Vector3d a_W = (velocity(t + dt) - velocity(t)) / dt;
     s.accel_m_s2 = M.linear().transpose() * (a_W - g_W);
     for (int k = 0; k < 3; ++k) {
