@@ -350,16 +350,21 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   st.normal_matrix = reg.normal_matrix;
   st.degenerate_directions = reg.degeneracy.degenerate;
   st.weakest_information = weakestInformation(reg.degeneracy);
-  if (reg.matches > 0)
-    st.covariance = registrationCovariance(
-        reg.degeneracy,
-        reg.degeneracy.residual_var_m2 > 0.0 ? reg.degeneracy.residual_var_m2
-                                             : reg.error_rms_m * reg.error_rms_m,
-        reg_config.degeneracy);
+  if (reg.matches > 0) {
+    const double sigma2 = reg.degeneracy.residual_var_m2 > 0.0
+                              ? reg.degeneracy.residual_var_m2
+                              : reg.error_rms_m * reg.error_rms_m;
+    st.covariance = registrationCovariance(reg.degeneracy, sigma2, reg_config.degeneracy);
+    st.measurement_covariance =
+        measurementCovariance(reg.degeneracy, sigma2, config_.velocity_firm_information);
+  }
   // A direction the probe found unfixed is known no better than the probes' spread along it.
-  if (st.unconfirmed_directions > 0)
-    st.covariance.bottomRightCorner<3, 3>() +=
+  if (st.unconfirmed_directions > 0) {
+    const Eigen::Matrix3d widen =
         st.probe_spread_m * st.probe_spread_m * probe_dir * probe_dir.transpose();
+    st.covariance.bottomRightCorner<3, 3>() += widen;
+    st.measurement_covariance.bottomRightCorner<3, 3>() += widen;
+  }
 
   std::string failure = reg.failure;
   if (failure.empty() && !reg.T_ref_cur.matrix().allFinite())

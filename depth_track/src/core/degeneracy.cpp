@@ -145,4 +145,23 @@ Matrix6d registrationCovariance(const DegeneracyAnalysis& a, double sigma2_m2,
   return s.asDiagonal() * Cs * s.asDiagonal();
 }
 
+Matrix6d measurementCovariance(const DegeneracyAnalysis& a, double sigma2_m2,
+                               double firm_information) {
+  const Vector6d s = scaleDiagonal(a.length_scale_m);
+  const double wsum = a.weight_sum > 0.0 ? a.weight_sum : 1.0;
+  Matrix6d Cs = Matrix6d::Zero();
+  for (int i = 0; i < 6; ++i) {
+    const auto v = a.eigenvectors.col(i);
+    const double lambda = a.eigenvalues(i) * wsum;
+    const double g = a.gain(i);
+    const bool weak =
+        a.noise_floor(i) > 0.0 && a.eigenvalues(i) < firm_information * a.noise_floor(i);
+    const double var = lambda > 0.0 && g > 0.0 && !weak
+                           ? std::min(kUnmeasuredVariance, sigma2_m2 / (lambda * g))
+                           : kUnmeasuredVariance;
+    Cs += var * v * v.transpose();
+  }
+  return s.asDiagonal() * Cs * s.asDiagonal();
+}
+
 }  // namespace depth_track

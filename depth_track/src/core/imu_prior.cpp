@@ -318,7 +318,7 @@ std::optional<Matrix6d> trackedPoseCovariance(const FrameStatus& status) {
   if (!status.tracked) return std::nullopt;
   Matrix6d R = Matrix6d::Zero();
   R.topLeftCorner<3, 3>() = R.bottomRightCorner<3, 3>() = status.T_W_Cref.linear();
-  return R * status.covariance * R.transpose();
+  return R * status.measurement_covariance * R.transpose();
 }
 
 }  // namespace depth_track

@@ -336,15 +336,17 @@ TEST(ImuPrior, AnAccelerationWithinTheErrorIsTakenAsNone) {
 }
 
 // The untracked frame: the filter carries on with the IMU alone, and a frame's pose covariance
-// comes from its status, turned into the world frame.
+// comes from its status (what the registration measured, not the pose's covariance with the
+// prior in it), turned into the world frame.
 TEST(ImuPrior, PoseCovarianceOfAStatus) {
   FrameStatus st;
   st.tracked = false;
   EXPECT_FALSE(trackedPoseCovariance(st).has_value());
   st.tracked = true;
-  st.covariance.setZero();
-  st.covariance(3, 3) = 4e-4;  // along the reference camera's x
-  st.covariance(2, 2) = 1e-6;  // rotation about its z
+  st.covariance = Matrix6d::Identity();  // not what the filter takes
+  st.measurement_covariance.setZero();
+  st.measurement_covariance(3, 3) = 4e-4;  // along the reference camera's x
+  st.measurement_covariance(2, 2) = 1e-6;  // rotation about its z
   st.T_W_Cref.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitX()).toRotationMatrix();
   const Matrix6d c = *trackedPoseCovariance(st);
   EXPECT_NEAR(c(3, 3), 4e-4, 1e-12);  // the camera's x is the world's x

@@ -127,6 +127,11 @@ struct FrameStatus {
   /// the camera centre, the centre's displacement): sigma^2 H^-1 along the fixed directions (sigma
   /// the residual RMS), the motion prior's variance along held ones. Zero when no registration ran.
   Matrix6d covariance = Matrix6d::Zero();
+  /// The same, of what the view alone measured (measurementCovariance): a held direction, whose
+  /// pose is the motion prior's, and one below velocity_firm_information times its floor carry
+  /// no measurement (kUnmeasuredVariance). What a filter that made the prior (ImuMotionPrior)
+  /// takes as the frame's measurement. Zero when no registration ran.
+  Matrix6d measurement_covariance = Matrix6d::Zero();
   double ms_prefilter = 0.0, ms_reduce = 0.0, ms_register = 0.0, ms_total = 0.0;
   bool new_keyframe = false;  ///< the frame became the reference for the next ones
   /// Registered again from the previous pose (CellOdometryConfig::retry_pairs_below); kept: that

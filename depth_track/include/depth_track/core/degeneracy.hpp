@@ -121,4 +121,19 @@ Eigen::Isometry3d withPriorAlongDegenerate(const DegeneracyAnalysis& analysis,
 Matrix6d registrationCovariance(const DegeneracyAnalysis& analysis, double sigma2_m2,
                                 const DegeneracyConfig& config);
 
+/// Variance (m^2 in the scaled coordinates [L omega; u]) standing for "not measured" in
+/// measurementCovariance: a metre, against the millimetres of a measured direction. Not larger,
+/// since an eigenvector's last digits would carry it into the measured directions.
+constexpr double kUnmeasuredVariance = 1.0;
+
+/// Covariance of what the view alone measured of [omega; u]: sigma2 / (lambda wsum) / gain along
+/// each eigenvector, kUnmeasuredVariance along one whose gain is zero or whose eigenvalue is
+/// below firm_information times its noise floor. A held direction's pose is the motion prior's,
+/// so a filter that made that prior must not take it back as a measurement
+/// (registrationCovariance puts the prior's variance there instead); a weak one, in a view
+/// turning degenerate, slides further than sigma2 says (CellOdometryConfig::
+/// velocity_firm_information, whose threshold this is).
+Matrix6d measurementCovariance(const DegeneracyAnalysis& analysis, double sigma2_m2,
+                               double firm_information);
+
 }  // namespace depth_track

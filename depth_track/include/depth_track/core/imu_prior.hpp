@@ -16,9 +16,10 @@ namespace depth_track {
 
 struct FrameStatus;  // cell_odometry.hpp
 
-/// The covariance of a tracked frame's camera pose in the world frame, [rotation (rad);
-/// position (m)]: its registration's covariance turned from the reference frame into the world
-/// (large along a direction the view did not fix); nullopt for a frame not tracked.
+/// The covariance of what a tracked frame's registration measured of its camera pose, in the
+/// world frame, [rotation (rad); position (m)]: FrameStatus::measurement_covariance turned from
+/// the reference frame into the world. A held or weak direction reads kUnmeasuredVariance;
+/// nullopt for a frame not tracked.
 std::optional<Eigen::Matrix<double, 6, 6>> trackedPoseCovariance(const FrameStatus& status);
 
 /// One IMU reading in the IMU's own frame. The accelerometer reads specific force: acceleration
