@@ -250,11 +250,11 @@ TEST(WholeRun, Hall1D435Seed6LeavesTheStartWithCreasePooling) {
 
 // The corridor's start with a camera IMU as motion prior (ImuMotionPrior; a D435i's or D455's
 // BMI055, simulated along the run with its noise and a bias, seed 6 for both): the frames the
-// view cannot fix keep the IMU's motion, and seed 6 no longer stands still. Measured 2026-12-05,
-// first 150 frames: largest position error 12.4 mm (end 4.1 mm; guard 20 mm) against 988 mm
+// view cannot fix keep the IMU's motion, and seed 6 no longer stands still. Measured 2026-12-06,
+// first 150 frames: largest position error 12.4 mm (end 3.1 mm; guard 20 mm) against 988 mm
 // without the IMU (docs/tracking.md); over the whole run (track_sequence --render hall1 --noise
-// d435 --seed 6 --imu-sim bmi055) 38.8 mm against 1013 mm (51.6 mm before the lever-arm and
-// gyro-bias fixes of the evening).
+// d435 --seed 6 --imu-sim bmi055) 22.4 mm against 1013 mm (38.8 mm before the filter left the
+// held directions out of its measurements, 51.6 mm before the lever-arm and gyro-bias fixes).
 TEST(WholeRun, Hall1D435Seed6TracksWithAnImu) {
   const sim::RenderedRun run = sim::makeRun("hall1");
   const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kD435);
