@@ -289,12 +289,16 @@ int main(int argc, char** argv) {
           st.T_W_C = known.T_W_C;
         } else {
           std::optional<Eigen::Isometry3d> guess;
+          std::optional<InertialHold> hold;
           if (imu) {
             imu_fed = imu->addUpTo(imu_samples, imu_fed, source->stamp(i));
-            guess = imu->predict(source->stamp(i));
+            if (const auto g = imu->guess(source->stamp(i))) {
+              guess = g->T_Cprev_Ccur;
+              hold = g->hold;
+            }
             imu_guesses += guess.has_value();
           }
-          st = tracker.track(depth, source->stamp(i), guess);
+          st = tracker.track(depth, source->stamp(i), guess, hold);
           keyframe_cells += st.model.cells;
           refined_cells += st.model.refined;
           retried += st.retried;

@@ -218,7 +218,8 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s
 }
 
 FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
-                                const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur) {
+                                const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur,
+                                const std::optional<InertialHold>& hold) {
   const auto t0 = std::chrono::steady_clock::now();
   if (!cells) throw std::invalid_argument("track: no cell cloud (null)");
   FrameStatus st;
@@ -230,6 +231,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   if (prior_T_Cprev_Ccur) {
     if (!prior_T_Cprev_Ccur->matrix().allFinite())
       throw std::invalid_argument("track: motion prior is not finite");
+    if (hold && (!hold->velocity_change_W.allFinite() || !hold->step_W.allFinite()))
+      throw std::invalid_argument("track: inertial hold is not finite");
     motion = *prior_T_Cprev_Ccur;
   } else if (config_.constant_velocity) {
     motion = velocity_T_Cprev_Ccur_;
@@ -398,6 +401,17 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       const Eigen::Isometry3d prior = smoothedPrediction(st.stamp_s, true).value_or(*smoothed);
       T_ref_cur =
           withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
+    } else if (held && prior_T_Cprev_Ccur && hold) {
+      // An IMU's guess: its rotation (the gyro's), and for the position the firm frames'
+      // velocity plus the velocity change the IMU read as significant since the last firm frame.
+      if (const auto firm = smoothedPrediction(st.stamp_s, true)) {
+        Eigen::Isometry3d prior = T_W_pred;
+        prior.translation() = firm->translation() +
+                              (st.stamp_s - last_stamp_s_) * hold->velocity_change_W +
+                              hold->step_W;
+        T_ref_cur =
+            withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
+      }
     }
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     last_held_ = held;

@@ -151,6 +151,8 @@ std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp
     keep = a > tau ? (a - tau) / a : 0.0;
   }
   Propagated out;
+  out.significant_dv = keep * A_v;
+  out.significant_dp = keep * A_p;
   out.x = x_;
   out.x.head<3>() = p0 + v0 * T + keep * A_p - L_p;
   out.x.segment<3>(3) = v0 + keep * A_v - L_v;
@@ -184,6 +186,16 @@ std::optional<Eigen::Isometry3d> ImuMotionPrior::predict(double stamp_s) const {
   const auto next = propagate(stamp_s);
   if (!next) return std::nullopt;
   return last_T_W_C_.inverse() * next->T_W_C;
+}
+
+std::optional<ImuMotionPrior::Guess> ImuMotionPrior::guess(double stamp_s) const {
+  const auto next = propagate(stamp_s);
+  if (!next) return std::nullopt;
+  Guess g;
+  g.T_Cprev_Ccur = last_T_W_C_.inverse() * next->T_W_C;
+  g.hold.velocity_change_W = held_dv_;
+  g.hold.step_W = next->significant_dp;
+  return g;
 }
 
 bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
@@ -232,6 +244,7 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   gyro_bias_P_ = std::max(gyro_spread2, 1e-8) * Eigen::Matrix3d::Identity();
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
+  held_dv_.setZero();
   P_.setZero();
   // Still: velocity zero to within what the readings' spread allows over the window; the mean
   // is off by the window's mean acceleration (a hand's tremor, a sway): at most about the spread.
@@ -268,6 +281,11 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
     if (const auto next = propagate(stamp_s)) {
       x_ = next->x;
       P_ = next->P;
+      // A firm frame (every direction measured: an unmeasured one alone puts at least
+      // kUnmeasuredVariance / L^2 on the trace, 1e-2 for pairs 10 m away; a measured one is known
+      // to millimetres) starts the sum of significant velocity changes again.
+      held_dv_ += next->significant_dv;
+      if (pose_cov_W && pose_cov_W->trace() < 1e-2) held_dv_.setZero();
       const double T = stamp_s - last_stamp_s_;
       gyro_bias_P_ += config_.gyro_bias_walk * config_.gyro_bias_walk * T *
                       Eigen::Matrix3d::Identity();

@@ -66,7 +66,8 @@ const CellCloud& Tracker::lastCells() const {
 }
 
 FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
-                           const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur) {
+                           const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur,
+                           const std::optional<InertialHold>& hold) {
   const auto t0 = std::chrono::steady_clock::now();
   checkFrameSize(depth, intrinsics_);
   double ms_prefilter = 0.0;
@@ -83,7 +84,7 @@ FrameStatus Tracker::track(const DepthImage& depth, double stamp_s,
     applyCalibration(calibrateNoise(input, intrinsics_, config_.pca.cell_size, stamp_s));
   std::shared_ptr<const CellCloud> cells = reducer_.reduce(input, stamp_s);
   const double ms_front = msSince(t0);
-  FrameStatus st = odometry_.track(std::move(cells), prior_T_Cprev_Ccur);
+  FrameStatus st = odometry_.track(std::move(cells), prior_T_Cprev_Ccur, hold);
   st.ms_prefilter = ms_prefilter;
   st.ms_reduce = ms_front - ms_prefilter;
   st.ms_total = msSince(t0);

@@ -327,8 +327,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
   /// to the stamp handed over (waiting up to imu_timeout for one at or after it), the prior
   /// built once the IMU's mount is in tf. Problems go to the log, throttled; the frame then
   /// takes the constant-velocity guess.
-  std::optional<Eigen::Isometry3d> imuPrior(const ros::Time& stamp,
-                                            const std::string& camera_frame) {
+  std::optional<ImuMotionPrior::Guess> imuPrior(const ros::Time& stamp,
+                                                const std::string& camera_frame) {
     const double t = stamp.toSec();
     const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(imu_timeout_s_);
     std::deque<ImuSample> take;
@@ -379,7 +379,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
         NODELET_WARN_THROTTLE(5.0, "registration: IMU reading left out: %s", e.what());
       }
     }
-    return imu_->predict(t);
+    return imu_->guess(t);
   }
 
   std::optional<Eigen::Isometry3d> prior(const ros::Time& stamp) {
@@ -462,8 +462,13 @@ class RegistrationNodelet : public nodelet::Nodelet {
       prev_stamp_ = h.stamp.toSec();
       const auto t0 = std::chrono::steady_clock::now();
       auto guess = prior(h.stamp);
-      if (!guess && use_imu_ && guess_frame_.empty()) guess = imuPrior(h.stamp, h.frame_id);
-      FrameStatus st = odometry_->track(cells, guess);
+      std::optional<InertialHold> hold;
+      if (!guess && use_imu_ && guess_frame_.empty())
+        if (const auto g = imuPrior(h.stamp, h.frame_id)) {
+          guess = g->T_Cprev_Ccur;
+          hold = g->hold;
+        }
+      FrameStatus st = odometry_->track(cells, guess, hold);
       rig_msgs::TrackingStatus s = newStatus(h);
       s.prior_used = guess.has_value();
       if (!st.tracked) {

@@ -332,7 +332,43 @@ TEST(ImuPrior, AnAccelerationWithinTheErrorIsTakenAsNone) {
       EXPECT_NEAR(x, 0.0, 1e-7);
     else
       EXPECT_NEAR(x, exact, 0.05 * exact);
+    // From rest the whole displacement is the significant acceleration's: what the tracker's
+    // held directions add to the firm frames' velocity (InertialHold).
+    const auto g = prior.guess(0.3 + 1.0 / 30);
+    ASSERT_TRUE(g.has_value());
+    EXPECT_NEAR(g->hold.step_W.x(), x, 1e-9);
+    EXPECT_EQ(g->hold.velocity_change_W, Eigen::Vector3d::Zero());
   }
+}
+
+// The velocity change handed to held directions runs from the last firm frame (every direction
+// measured): a frame the registration measured nothing of adds its interval's, a firm one starts
+// the sum again.
+TEST(ImuPrior, TheHoldsVelocityChangeRunsFromTheLastFirmFrame) {
+  ImuMotionPrior prior{ImuPriorConfig{}};
+  int j = 0;
+  for (; j <= 60; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {0, 0, 9.80665}});
+  ASSERT_TRUE(prior.update(0.3, Eigen::Isometry3d::Identity(), smallCov()));
+  for (; j <= 80; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {2.0, 0, 9.80665}});
+  const double t1 = 0.3 + 1.0 / 30, t2 = 0.3 + 2.0 / 30, t3 = 0.3 + 3.0 / 30;
+  const auto g1 = prior.guess(t1);
+  ASSERT_TRUE(g1.has_value());
+  // Nothing measured: the pose is the guess, and the frame is no firm one.
+  Matrix6d none = Matrix6d::Identity() * kUnmeasuredVariance;
+  ASSERT_TRUE(prior.update(t1, prior.predict(t1).value(), none));
+  const auto g2 = prior.guess(t2);
+  ASSERT_TRUE(g2.has_value());
+  const double moving = 1.0 / 30 - 0.005;  // the reading at 0.3 s still reads rest
+  std::printf("velocity change after one unmeasured frame: %.4f m/s (2 m/s^2 over %.4f s)\n",
+              g2->hold.velocity_change_W.x(), moving);
+  EXPECT_NEAR(g2->hold.velocity_change_W.x(), 2.0 * moving, 0.05 * 2.0 * moving);
+  EXPECT_NEAR(g2->hold.velocity_change_W.tail<2>().norm(), 0.0, 1e-9);
+  // A firm frame: the sum starts again.
+  ASSERT_TRUE(prior.update(t2, prior.predict(t2).value(), smallCov()));
+  const auto g3 = prior.guess(t3);
+  ASSERT_TRUE(g3.has_value());
+  EXPECT_EQ(g3->hold.velocity_change_W, Eigen::Vector3d::Zero());
+  EXPECT_GT(g3->hold.step_W.x(), 0.0);
 }
 
 // The untracked frame: the filter carries on with the IMU alone, and a frame's pose covariance

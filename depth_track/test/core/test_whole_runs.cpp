@@ -270,9 +270,12 @@ TEST(WholeRun, Hall1D435Seed6TracksWithAnImu) {
   for (std::size_t i = 0; i < n; ++i) {
     const double t = run.stamps_s[i];
     fed = imu.addUpTo(samples, fed, t);
-    const auto guess = imu.predict(t);
+    const auto guess = imu.guess(t);
     guessed += guess.has_value();
-    const FrameStatus st = tracker.track(run.renderFrame(i, noise, 6), t, guess);
+    const FrameStatus st =
+        tracker.track(run.renderFrame(i, noise, 6), t,
+                      guess ? std::optional<Eigen::Isometry3d>(guess->T_Cprev_Ccur) : std::nullopt,
+                      guess ? std::optional<InertialHold>(guess->hold) : std::nullopt);
     tracked += st.tracked;
     ASSERT_TRUE(imu.update(t, tracker.pose(), trackedPoseCovariance(st))) << imu.reason();
     est.push_back(st.T_W_C);

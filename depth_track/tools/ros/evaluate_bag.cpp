@@ -636,12 +636,17 @@ int main(int argc, char** argv) {
           f.ms_decode = msSince(t0);
           const double cpu0 = cpuMs();
           std::optional<Eigen::Isometry3d> prior;
+          std::optional<InertialHold> hold;
           if (sensor_prior) prior = sensor_prior->next(stamp);
           if (imu_prior) {
             imu_fed = imu_prior->addUpTo(imu.samples, imu_fed, stamp);
-            prior = imu_prior->predict(stamp);
+            prior.reset();
+            if (const auto g = imu_prior->guess(stamp)) {
+              prior = g->T_Cprev_Ccur;
+              hold = g->hold;
+            }
           }
-          const FrameStatus st = tracker.track(depth, stamp, prior);
+          const FrameStatus st = tracker.track(depth, stamp, prior, hold);
           f.tracked = st.tracked;
           f.failure = st.failure;
           f.cells = st.cells, f.matches = st.matches, f.fm_matches = st.fm_matches;

@@ -102,6 +102,19 @@ struct CellOdometryConfig {
   std::vector<std::string> validate() const;
 };
 
+/// What an inertial prior (ImuMotionPrior::guess) adds for the directions a view does not fix.
+/// Held directions follow the velocity of the firm frames, as without an external prior, plus
+/// the velocity change the IMU read as significant since the last firm frame, rather than the
+/// IMU's own velocity: an IMU tells a start or a stop well, a constant velocity no better than the
+/// depth of the frames before (docs/tracking.md, "Held directions follow the firm frames").
+struct InertialHold {
+  /// The camera's velocity change since the last firm frame (world, m/s), up to the last frame.
+  Eigen::Vector3d velocity_change_W = Eigen::Vector3d::Zero();
+  /// The camera's displacement over this frame's interval from its significant acceleration
+  /// (world, m), beyond moving at the velocity it had at the last frame.
+  Eigen::Vector3d step_W = Eigen::Vector3d::Zero();
+};
+
 /// TRACKING: the last frame registered. LOST: it did not (or no usable frame came yet); the pose
 /// is the prediction. RELOCALISING: lost, and a relocalisation was tried and rejected.
 enum class TrackingState { kTracking, kLost, kRelocalising };
@@ -175,10 +188,13 @@ class CellOdometry {
   /// (too few cells or matches, residual, implausible jump) keeps the predicted pose and is
   /// flagged LOST, never a NaN pose. `prior_T_Cprev_Ccur` optionally replaces the
   /// constant-velocity guess with an external motion prior (the camera's motion since the last
-  /// frame). Throws std::invalid_argument for a null cloud, a non-finite prior or cells of
-  /// another grid than the reference's (reset() after changing the cell size).
+  /// frame); the registration keeps it along the directions the view does not fix, unless
+  /// `hold` (an IMU's, with the prior) gives them the firm frames' velocity and its significant
+  /// acceleration. Throws std::invalid_argument for a null cloud, a non-finite prior or hold, or
+  /// cells of another grid than the reference's (reset() after changing the cell size).
   FrameStatus track(std::shared_ptr<const CellCloud> cells,
-                    const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt);
+                    const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt,
+                    const std::optional<InertialHold>& hold = std::nullopt);
 
   /// Registers the last frame's cells (lastCells()) onto `reference`, cells of the same grid
   /// seen from T_W_Cref (e.g. the map ray-cast at the held pose and reduced like the frame),

@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-namespace depth_track {
+#include "depth_track/core/cell_odometry.hpp"
 
-struct FrameStatus;  // cell_odometry.hpp
+namespace depth_track {
 
 /// The covariance of what a tracked frame's registration measured of its camera pose, in the
 /// world frame, [rotation (rad); position (m)]: FrameStatus::measurement_covariance turned from
@@ -99,6 +99,15 @@ class ImuMotionPrior {
   /// its end, or a gap longer than max_gap_s inside it). Const: the state moves in update().
   std::optional<Eigen::Isometry3d> predict(double stamp_s) const;
 
+  /// predict() and, for the tracker's held directions (Tracker::track's `hold`), the velocity
+  /// change the soft threshold let through since the last firm frame (one whose every direction
+  /// the registration measured, trackedPoseCovariance) and this interval's displacement from it.
+  struct Guess {
+    Eigen::Isometry3d T_Cprev_Ccur;
+    InertialHold hold;
+  };
+  std::optional<Guess> guess(double stamp_s) const;
+
   /// A frame's pose as the tracker left it (T_W_C) and, when it was tracked, the covariance of
   /// its pose in the world frame ([rotation; position], trackedPoseCovariance of its FrameStatus);
   /// nullopt: not tracked. The first call starts the prior when the readings before it show a still camera
@@ -143,6 +152,9 @@ class ImuMotionPrior {
     Eigen::Isometry3d T_W_C;  // position from the filter's
     Vector12d x;
     Matrix12d P;
+    // The camera's significant (past the soft threshold) velocity change and displacement over
+    // the interval, world frame.
+    Eigen::Vector3d significant_dv, significant_dp;
   };
   /// The filter and the camera pose carried from the last frame to stamp_s.
   std::optional<Propagated> propagate(double stamp_s) const;
@@ -160,6 +172,8 @@ class ImuMotionPrior {
   Matrix12d P_ = Matrix12d::Zero();
   Eigen::Isometry3d last_T_W_C_ = Eigen::Isometry3d::Identity();
   double last_stamp_s_ = 0.0;
+  // The significant velocity changes summed since the last firm frame (world, m/s).
+  Eigen::Vector3d held_dv_ = Eigen::Vector3d::Zero();
 };
 
 }  // namespace depth_track

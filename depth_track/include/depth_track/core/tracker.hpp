@@ -52,9 +52,11 @@ class Tracker {
   /// Tracks one frame (metres, 0 = no return). A frame of the wrong size throws
   /// DepthInputError; an unusable frame (empty, too few matches) is flagged, never a NaN pose.
   /// `prior_T_Cprev_Ccur` optionally replaces the constant-velocity guess with an external
-  /// motion prior expressed as the camera's motion T_Cprev_Ccur.
+  /// motion prior expressed as the camera's motion T_Cprev_Ccur; `hold`, an IMU's part for the
+  /// directions the view does not fix (CellOdometry::track).
   FrameStatus track(const DepthImage& depth, double stamp_s,
-                    const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt);
+                    const std::optional<Eigen::Isometry3d>& prior_T_Cprev_Ccur = std::nullopt,
+                    const std::optional<InertialHold>& hold = std::nullopt);
 
   /// Current camera pose in the world.
   const Eigen::Isometry3d& pose() const { return odometry_.pose(); }
