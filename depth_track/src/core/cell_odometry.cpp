@@ -153,6 +153,7 @@ void CellOdometry::reset(const Eigen::Isometry3d& T_W_C) {
   state_ = TrackingState::kLost;
   frames_since_refresh_ = 0;
   history_.clear();
+  last_inertial_W_.setZero();
   last_held_ = false;
   prior_var_m2_ = kUntestedPriorSigmaM * kUntestedPriorSigmaM;
   clearModel();
@@ -175,8 +176,8 @@ void CellOdometry::correctPose(const Eigen::Isometry3d& T_W_C) {
   T_M_W_ = orthonormalized(T_M_W_ * correction.inverse());
 }
 
-std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s,
-                                                                  bool firm_only) const {
+std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(
+    double stamp_s, bool firm_only, const Eigen::Vector3d* inertial_W) const {
   if (!(config_.velocity_span_s > 0.0) || history_.size() < 2) return std::nullopt;
   const double threshold = config_.velocity_firm_information;
   const auto is_firm = [&](const HistoryEntry& h) { return h.weakest_information >= threshold; };
@@ -194,7 +195,7 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s
     if (!first) first = &h;
     last = &h;
     tm += h.stamp_s;
-    pm += h.T_W_C.translation();
+    pm += h.T_W_C.translation() - (inertial_W ? h.inertial_W : Eigen::Vector3d::Zero());
     n += 1.0;
   }
   tm /= n;
@@ -204,7 +205,8 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s
   for (const HistoryEntry& h : history_) {
     if (!counts(h)) continue;
     stt += (h.stamp_s - tm) * (h.stamp_s - tm);
-    stp += (h.stamp_s - tm) * (h.T_W_C.translation() - pm);
+    stp += (h.stamp_s - tm) *
+           (h.T_W_C.translation() - (inertial_W ? h.inertial_W : Eigen::Vector3d::Zero()) - pm);
   }
   const double span = last->stamp_s - first->stamp_s;
   if (!(stt > 0.0) || !(span > 0.0)) return std::nullopt;
@@ -214,6 +216,7 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(double stamp_s
   T.linear() = T_W_C_.rotation() *
                Eigen::AngleAxisd(rate.angle() * dt / span, rate.axis()).toRotationMatrix();
   T.translation() = T_W_C_.translation() + stp / stt * dt;
+  if (inertial_W) T.translation() += *inertial_W - last_inertial_W_;
   return T;
 }
 
@@ -231,7 +234,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   if (prior_T_Cprev_Ccur) {
     if (!prior_T_Cprev_Ccur->matrix().allFinite())
       throw std::invalid_argument("track: motion prior is not finite");
-    if (hold && (!hold->velocity_change_W.allFinite() || !hold->step_W.allFinite()))
+    if (hold && !hold->displacement_W.allFinite())
       throw std::invalid_argument("track: inertial hold is not finite");
     motion = *prior_T_Cprev_Ccur;
   } else if (config_.constant_velocity) {
@@ -402,13 +405,11 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       T_ref_cur =
           withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
     } else if (held && prior_T_Cprev_Ccur && hold) {
-      // An IMU's guess: its rotation (the gyro's), and for the position the firm frames'
-      // velocity plus the velocity change the IMU read as significant since the last firm frame.
-      if (const auto firm = smoothedPrediction(st.stamp_s, true)) {
+      // An IMU's guess: its rotation (the gyro's), and for the position the firm frames' line
+      // with the IMU's significant accelerations taken out, and this frame's put back.
+      if (const auto firm = smoothedPrediction(st.stamp_s, true, &hold->displacement_W)) {
         Eigen::Isometry3d prior = T_W_pred;
-        prior.translation() = firm->translation() +
-                              (st.stamp_s - last_stamp_s_) * hold->velocity_change_W +
-                              hold->step_W;
+        prior.translation() = firm->translation();
         T_ref_cur =
             withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
       }
@@ -416,6 +417,7 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     T_W_C_ = orthonormalized(T_W_Cref_ * T_ref_cur);
     last_held_ = held;
     if (!held) last_firm_matches_ = reg.matches;
+    if (hold) last_inertial_W_ = hold->displacement_W;
     st.tracked = true;
     state_ = TrackingState::kTracking;
     velocity_T_Cprev_Ccur_ = T_W_prev.inverse() * T_W_C_;
@@ -433,7 +435,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         const double e2 = std::max(e_trans2, e_rot_m * e_rot_m) / 3.0;
         prior_var_m2_ = std::max(0.9 * prior_var_m2_ + 0.1 * e2, kMinPriorSigmaM * kMinPriorSigmaM);
       }
-      history_.push_back({st.stamp_s, T_W_C_, st.weakest_information});
+      history_.push_back({st.stamp_s, T_W_C_, st.weakest_information,
+                          hold ? hold->displacement_W : last_inertial_W_});
       while (history_.size() > 2 &&
              history_.back().stamp_s - history_.front().stamp_s > config_.velocity_span_s)
         history_.pop_front();

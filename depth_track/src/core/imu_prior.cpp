@@ -193,8 +193,8 @@ std::optional<ImuMotionPrior::Guess> ImuMotionPrior::guess(double stamp_s) const
   if (!next) return std::nullopt;
   Guess g;
   g.T_Cprev_Ccur = last_T_W_C_.inverse() * next->T_W_C;
-  g.hold.velocity_change_W = held_dv_;
-  g.hold.step_W = next->significant_dp;
+  g.hold.displacement_W =
+      significant_d_ + significant_v_ * (stamp_s - last_stamp_s_) + next->significant_dp;
   return g;
 }
 
@@ -244,7 +244,8 @@ bool ImuMotionPrior::start(double stamp_s, const Eigen::Isometry3d& T_W_C) {
   gyro_bias_P_ = std::max(gyro_spread2, 1e-8) * Eigen::Matrix3d::Identity();
   x_.setZero();
   x_.head<3>() = (T_W_C * config_.T_C_I).translation();
-  held_dv_.setZero();
+  significant_v_.setZero();
+  significant_d_.setZero();
   P_.setZero();
   // Still: velocity zero to within what the readings' spread allows over the window; the mean
   // is off by the window's mean acceleration (a hand's tremor, a sway): at most about the spread.
@@ -281,12 +282,9 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
     if (const auto next = propagate(stamp_s)) {
       x_ = next->x;
       P_ = next->P;
-      // A firm frame (every direction measured: an unmeasured one alone puts at least
-      // kUnmeasuredVariance / L^2 on the trace, 1e-2 for pairs 10 m away; a measured one is known
-      // to millimetres) starts the sum of significant velocity changes again.
-      held_dv_ += next->significant_dv;
-      if (pose_cov_W && pose_cov_W->trace() < 1e-2) held_dv_.setZero();
       const double T = stamp_s - last_stamp_s_;
+      significant_d_ += significant_v_ * T + next->significant_dp;
+      significant_v_ += next->significant_dv;
       gyro_bias_P_ += config_.gyro_bias_walk * config_.gyro_bias_walk * T *
                       Eigen::Matrix3d::Identity();
       if (pose_cov_W) {
@@ -317,13 +315,17 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
         P_ -= K * P_.topRows<3>();
         P_ = 0.5 * (P_ + P_.transpose());
       }
-    } else if (pose_cov_W) {
-      // Readings missing over the interval: the velocity from the depth alone; the filter
-      // starts again from the tracked position with its velocity uncertain.
-      const Eigen::Vector3d p_last = x_.head<3>();
-      x_.head<3>() = p_tracked;
-      x_.segment<3>(3) = (p_tracked - p_last) / (stamp_s - last_stamp_s_);
-      P_.block<3, 3>(3, 3) += 0.01 * Eigen::Matrix3d::Identity();
+    } else {
+      // The significant velocity carries on over an interval without readings.
+      significant_d_ += significant_v_ * (stamp_s - last_stamp_s_);
+      if (pose_cov_W) {
+        // Readings missing over the interval: the velocity from the depth alone; the filter
+        // starts again from the tracked position with its velocity uncertain.
+        const Eigen::Vector3d p_last = x_.head<3>();
+        x_.head<3>() = p_tracked;
+        x_.segment<3>(3) = (p_tracked - p_last) / (stamp_s - last_stamp_s_);
+        P_.block<3, 3>(3, 3) += 0.01 * Eigen::Matrix3d::Identity();
+      }
     }
   }
   last_T_W_C_ = T_W_C;

@@ -253,8 +253,9 @@ TEST(WholeRun, Hall1D435Seed6LeavesTheStartWithCreasePooling) {
 // view cannot fix keep the IMU's motion, and seed 6 no longer stands still. Measured 2026-12-06,
 // first 150 frames: largest position error 12.4 mm (end 3.1 mm; guard 20 mm) against 988 mm
 // without the IMU (docs/tracking.md); over the whole run (track_sequence --render hall1 --noise
-// d435 --seed 6 --imu-sim bmi055) 22.4 mm against 1013 mm (38.8 mm before the filter left the
-// held directions out of its measurements, 51.6 mm before the lever-arm and gyro-bias fixes).
+// d435 --seed 6 --imu-sim bmi055) 38.3 mm against 1013 mm (22.4 mm with the held directions on
+// the IMU filter's velocity, 38.8 mm before the filter left them out of its measurements, 51.6 mm
+// before the lever-arm and gyro-bias fixes; docs/tracking.md).
 TEST(WholeRun, Hall1D435Seed6TracksWithAnImu) {
   const sim::RenderedRun run = sim::makeRun("hall1");
   const sim::NoiseConfig noise = sim::NoiseConfig::forModel(sim::NoiseModel::kD435);

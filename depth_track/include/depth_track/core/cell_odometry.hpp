@@ -103,16 +103,16 @@ struct CellOdometryConfig {
 };
 
 /// What an inertial prior (ImuMotionPrior::guess) adds for the directions a view does not fix.
-/// Held directions follow the velocity of the firm frames, as without an external prior, plus
-/// the velocity change the IMU read as significant since the last firm frame, rather than the
-/// IMU's own velocity: an IMU tells a start or a stop well, a constant velocity no better than the
-/// depth of the frames before (docs/tracking.md, "Held directions follow the firm frames").
+/// Held directions follow the firm frames, as without an external prior, with the IMU's
+/// significant accelerations on top rather than the IMU's own velocity: the firm frames'
+/// positions less the displacement those accelerations made are fitted to a line, and the held
+/// position is that line's velocity plus this frame's displacement. An IMU tells a start or a
+/// stop well, a constant velocity no better than the depth of the frames before
+/// (docs/tracking.md, "Held directions follow the firm frames").
 struct InertialHold {
-  /// The camera's velocity change since the last firm frame (world, m/s), up to the last frame.
-  Eigen::Vector3d velocity_change_W = Eigen::Vector3d::Zero();
-  /// The camera's displacement over this frame's interval from its significant acceleration
-  /// (world, m), beyond moving at the velocity it had at the last frame.
-  Eigen::Vector3d step_W = Eigen::Vector3d::Zero();
+  /// The camera's displacement from the accelerations the IMU read as significant (past its soft
+  /// threshold), summed since the prior started, at this frame (world, m).
+  Eigen::Vector3d displacement_W = Eigen::Vector3d::Zero();
 };
 
 /// TRACKING: the last frame registered. LOST: it did not (or no usable frame came yet); the pose
@@ -246,8 +246,10 @@ class CellOdometry {
   void setModelReference(const std::shared_ptr<const CellCloud>& cells, ModelRefineStats* stats);
   /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
   /// firm_only: fitted to the firm frames (CellOdometryConfig::velocity_firm_information) when
-  /// the window holds at least three.
-  std::optional<Eigen::Isometry3d> smoothedPrediction(double stamp_s, bool firm_only = false) const;
+  /// the window holds at least three. inertial_W: stamp_s's InertialHold::displacement_W; the
+  /// line is then fitted to the positions less theirs, and the pose moved by the difference.
+  std::optional<Eigen::Isometry3d> smoothedPrediction(
+      double stamp_s, bool firm_only = false, const Eigen::Vector3d* inertial_W = nullptr) const;
   /// relocalise(): the starts worth registering to convergence (T_ref_cur), screened from the
   /// guess and its turns (RelocaliseConfig::search_angle_deg) with `reg`'s search.
   std::vector<Eigen::Isometry3d> screenRelocalisationStarts(const CellCloud& reference,
@@ -280,7 +282,9 @@ class CellOdometry {
     double stamp_s;
     Eigen::Isometry3d T_W_C;
     double weakest_information;  ///< FrameStatus's: firm at velocity_firm_information or more
+    Eigen::Vector3d inertial_W;  ///< InertialHold::displacement_W of the frame (the last one given)
   };
+  Eigen::Vector3d last_inertial_W_ = Eigen::Vector3d::Zero();  ///< of the last tracked frame
   std::deque<HistoryEntry> history_;
   /// Running mean square per axis of the smoothed prediction's position error on frames whose
   /// view fixed every direction, m^2, starting at (1 cm)^2: the prior's variance for the

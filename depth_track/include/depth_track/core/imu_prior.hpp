@@ -99,9 +99,8 @@ class ImuMotionPrior {
   /// its end, or a gap longer than max_gap_s inside it). Const: the state moves in update().
   std::optional<Eigen::Isometry3d> predict(double stamp_s) const;
 
-  /// predict() and, for the tracker's held directions (Tracker::track's `hold`), the velocity
-  /// change the soft threshold let through since the last firm frame (one whose every direction
-  /// the registration measured, trackedPoseCovariance) and this interval's displacement from it.
+  /// predict() and, for the tracker's held directions (Tracker::track's `hold`), the camera's
+  /// displacement from the accelerations the soft threshold let through, summed since the start.
   struct Guess {
     Eigen::Isometry3d T_Cprev_Ccur;
     InertialHold hold;
@@ -172,8 +171,10 @@ class ImuMotionPrior {
   Matrix12d P_ = Matrix12d::Zero();
   Eigen::Isometry3d last_T_W_C_ = Eigen::Isometry3d::Identity();
   double last_stamp_s_ = 0.0;
-  // The significant velocity changes summed since the last firm frame (world, m/s).
-  Eigen::Vector3d held_dv_ = Eigen::Vector3d::Zero();
+  // The significant velocity changes and the displacement they made, summed since the start up
+  // to the last frame (world, m/s and m).
+  Eigen::Vector3d significant_v_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d significant_d_ = Eigen::Vector3d::Zero();
 };
 
 }  // namespace depth_track
