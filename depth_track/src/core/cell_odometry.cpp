@@ -406,8 +406,17 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
           withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
     } else if (held && prior_T_Cprev_Ccur && hold) {
       // An IMU's guess: its rotation (the gyro's), and for the position the firm frames' line
-      // with the IMU's significant accelerations taken out, and this frame's put back.
-      if (const auto firm = smoothedPrediction(st.stamp_s, true, &hold->displacement_W)) {
+      // with the IMU's significant accelerations taken out, and this frame's put back. After a
+      // long hold the window may hold only the frame or two registered since: a line through
+      // fewer than three firm frames is a velocity from a step or two, and the IMU filter's own
+      // velocity (the guess) is kept instead.
+      const double firm_info = config_.velocity_firm_information;
+      const auto firm_frames = std::count_if(
+          history_.begin(), history_.end(),
+          [&](const HistoryEntry& h) { return h.weakest_information >= firm_info; });
+      if (firm_frames < 3) {
+        // the guess stands
+      } else if (const auto firm = smoothedPrediction(st.stamp_s, true, &hold->displacement_W)) {
         Eigen::Isometry3d prior = T_W_pred;
         prior.translation() = firm->translation();
         T_ref_cur =
