@@ -181,8 +181,17 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(
   if (!(config_.velocity_span_s > 0.0) || history_.size() < 2) return std::nullopt;
   const double threshold = config_.velocity_firm_information;
   const auto is_firm = [&](const HistoryEntry& h) { return h.weakest_information >= threshold; };
-  const bool only_firm = firm_only && threshold > 0.0 &&
-                         std::count_if(history_.begin(), history_.end(), is_firm) >= 3;
+  const bool three_firm = std::count_if(history_.begin(), history_.end(), is_firm) >= 3;
+  // With the IMU's displacement a line through fewer than three firm frames (after a long hold,
+  // the frame or two registered since: a velocity from a step or two) is no better than the
+  // IMU filter's own velocity, which the caller then keeps.
+  if (inertial_W && !three_firm) return std::nullopt;
+  const bool only_firm = firm_only && threshold > 0.0 && three_firm;
+  // The position the line is fitted to: with the IMU's displacement taken out.
+  const auto position = [&](const HistoryEntry& h) -> Eigen::Vector3d {
+    return inertial_W ? Eigen::Vector3d(h.T_W_C.translation() - h.inertial_W)
+                      : Eigen::Vector3d(h.T_W_C.translation());
+  };
   const auto counts = [&](const HistoryEntry& h) { return !only_firm || is_firm(h); };
   // Translation: least-squares line through the positions (its slope is the world velocity);
   // rotation: the mean body rate from the first to the last pose of the window.
@@ -195,7 +204,7 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(
     if (!first) first = &h;
     last = &h;
     tm += h.stamp_s;
-    pm += h.T_W_C.translation() - (inertial_W ? h.inertial_W : Eigen::Vector3d::Zero());
+    pm += position(h);
     n += 1.0;
   }
   tm /= n;
@@ -205,8 +214,7 @@ std::optional<Eigen::Isometry3d> CellOdometry::smoothedPrediction(
   for (const HistoryEntry& h : history_) {
     if (!counts(h)) continue;
     stt += (h.stamp_s - tm) * (h.stamp_s - tm);
-    stp += (h.stamp_s - tm) *
-           (h.T_W_C.translation() - (inertial_W ? h.inertial_W : Eigen::Vector3d::Zero()) - pm);
+    stp += (h.stamp_s - tm) * (position(h) - pm);
   }
   const double span = last->stamp_s - first->stamp_s;
   if (!(stt > 0.0) || !(span > 0.0)) return std::nullopt;
@@ -406,17 +414,9 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
           withPriorAlongDegenerate(reg.degeneracy, reg.T_ref_cur, T_W_Cref_.inverse() * prior);
     } else if (held && prior_T_Cprev_Ccur && hold) {
       // An IMU's guess: its rotation (the gyro's), and for the position the firm frames' line
-      // with the IMU's significant accelerations taken out, and this frame's put back. After a
-      // long hold the window may hold only the frame or two registered since: a line through
-      // fewer than three firm frames is a velocity from a step or two, and the IMU filter's own
-      // velocity (the guess) is kept instead.
-      const double firm_info = config_.velocity_firm_information;
-      const auto firm_frames = std::count_if(
-          history_.begin(), history_.end(),
-          [&](const HistoryEntry& h) { return h.weakest_information >= firm_info; });
-      if (firm_frames < 3) {
-        // the guess stands
-      } else if (const auto firm = smoothedPrediction(st.stamp_s, true, &hold->displacement_W)) {
+      // with the IMU's significant accelerations taken out, and this frame's put back (none with
+      // fewer than three firm frames: the guess, the IMU filter's velocity, then stands).
+      if (const auto firm = smoothedPrediction(st.stamp_s, true, &hold->displacement_W)) {
         Eigen::Isometry3d prior = T_W_pred;
         prior.translation() = firm->translation();
         T_ref_cur =

@@ -129,39 +129,40 @@ Eigen::Isometry3d withPriorAlongDegenerate(const DegeneracyAnalysis& a,
   return T;
 }
 
-Matrix6d registrationCovariance(const DegeneracyAnalysis& a, double sigma2_m2,
-                                const DegeneracyConfig& config) {
+namespace {
+// Sum over the eigenvectors of var(i, lambda_i wsum) v_i v_i^T, scaled back to [omega; u].
+template <class Variance>
+Matrix6d covarianceAlongModes(const DegeneracyAnalysis& a, const Variance& variance) {
   const Vector6d s = scaleDiagonal(a.length_scale_m);
   const double wsum = a.weight_sum > 0.0 ? a.weight_sum : 1.0;
-  const double prior2 = config.prior_sigma_m * config.prior_sigma_m;
   Matrix6d Cs = Matrix6d::Zero();
   for (int i = 0; i < 6; ++i) {
     const auto v = a.eigenvectors.col(i);
-    const double lambda = a.eigenvalues(i) * wsum;
-    const double measured = lambda > 0.0 ? sigma2_m2 / lambda : prior2;
-    const double var = a.gain(i) * measured + (1.0 - a.gain(i)) * prior2;
-    Cs += var * v * v.transpose();
+    Cs += variance(i, a.eigenvalues(i) * wsum) * v * v.transpose();
   }
   return s.asDiagonal() * Cs * s.asDiagonal();
+}
+}  // namespace
+
+Matrix6d registrationCovariance(const DegeneracyAnalysis& a, double sigma2_m2,
+                                const DegeneracyConfig& config) {
+  const double prior2 = config.prior_sigma_m * config.prior_sigma_m;
+  return covarianceAlongModes(a, [&](int i, double lambda) {
+    const double measured = lambda > 0.0 ? sigma2_m2 / lambda : prior2;
+    return a.gain(i) * measured + (1.0 - a.gain(i)) * prior2;
+  });
 }
 
 Matrix6d measurementCovariance(const DegeneracyAnalysis& a, double sigma2_m2,
                                double firm_information) {
-  const Vector6d s = scaleDiagonal(a.length_scale_m);
-  const double wsum = a.weight_sum > 0.0 ? a.weight_sum : 1.0;
-  Matrix6d Cs = Matrix6d::Zero();
-  for (int i = 0; i < 6; ++i) {
-    const auto v = a.eigenvectors.col(i);
-    const double lambda = a.eigenvalues(i) * wsum;
+  return covarianceAlongModes(a, [&](int i, double lambda) {
     const double g = a.gain(i);
     const bool weak =
         a.noise_floor(i) > 0.0 && a.eigenvalues(i) < firm_information * a.noise_floor(i);
-    const double var = lambda > 0.0 && g > 0.0 && !weak
-                           ? std::min(kUnmeasuredVariance, sigma2_m2 / (lambda * g))
-                           : kUnmeasuredVariance;
-    Cs += var * v * v.transpose();
-  }
-  return s.asDiagonal() * Cs * s.asDiagonal();
+    return lambda > 0.0 && g > 0.0 && !weak
+               ? std::min(kUnmeasuredVariance, sigma2_m2 / (lambda * g))
+               : kUnmeasuredVariance;
+  });
 }
 
 }  // namespace depth_track

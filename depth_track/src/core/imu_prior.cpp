@@ -183,9 +183,9 @@ std::optional<ImuMotionPrior::Propagated> ImuMotionPrior::propagate(double stamp
 }
 
 std::optional<Eigen::Isometry3d> ImuMotionPrior::predict(double stamp_s) const {
-  const auto next = propagate(stamp_s);
-  if (!next) return std::nullopt;
-  return last_T_W_C_.inverse() * next->T_W_C;
+  const auto g = guess(stamp_s);
+  if (!g) return std::nullopt;
+  return g->T_Cprev_Ccur;
 }
 
 std::optional<ImuMotionPrior::Guess> ImuMotionPrior::guess(double stamp_s) const {
@@ -279,11 +279,13 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
       throw std::invalid_argument("IMU prior: frame at " + fmt(stamp_s) +
                                   " s is not after the last (" + fmt(last_stamp_s_) + " s)");
     const Eigen::Vector3d p_tracked = (T_W_C * config_.T_C_I).translation();
+    const double T = stamp_s - last_stamp_s_;
+    // The significant velocity carries on over the interval (also one without readings).
+    significant_d_ += significant_v_ * T;
     if (const auto next = propagate(stamp_s)) {
       x_ = next->x;
       P_ = next->P;
-      const double T = stamp_s - last_stamp_s_;
-      significant_d_ += significant_v_ * T + next->significant_dp;
+      significant_d_ += next->significant_dp;
       significant_v_ += next->significant_dv;
       gyro_bias_P_ += config_.gyro_bias_walk * config_.gyro_bias_walk * T *
                       Eigen::Matrix3d::Identity();
@@ -315,17 +317,13 @@ bool ImuMotionPrior::update(double stamp_s, const Eigen::Isometry3d& T_W_C,
         P_ -= K * P_.topRows<3>();
         P_ = 0.5 * (P_ + P_.transpose());
       }
-    } else {
-      // The significant velocity carries on over an interval without readings.
-      significant_d_ += significant_v_ * (stamp_s - last_stamp_s_);
-      if (pose_cov_W) {
-        // Readings missing over the interval: the velocity from the depth alone; the filter
-        // starts again from the tracked position with its velocity uncertain.
-        const Eigen::Vector3d p_last = x_.head<3>();
-        x_.head<3>() = p_tracked;
-        x_.segment<3>(3) = (p_tracked - p_last) / (stamp_s - last_stamp_s_);
-        P_.block<3, 3>(3, 3) += 0.01 * Eigen::Matrix3d::Identity();
-      }
+    } else if (pose_cov_W) {
+      // Readings missing over the interval: the velocity from the depth alone; the filter
+      // starts again from the tracked position with its velocity uncertain.
+      const Eigen::Vector3d p_last = x_.head<3>();
+      x_.head<3>() = p_tracked;
+      x_.segment<3>(3) = (p_tracked - p_last) / T;
+      P_.block<3, 3>(3, 3) += 0.01 * Eigen::Matrix3d::Identity();
     }
   }
   last_T_W_C_ = T_W_C;

@@ -271,12 +271,11 @@ TEST(WholeRun, Hall1D435Seed6TracksWithAnImu) {
   for (std::size_t i = 0; i < n; ++i) {
     const double t = run.stamps_s[i];
     fed = imu.addUpTo(samples, fed, t);
-    const auto guess = imu.guess(t);
+    std::optional<Eigen::Isometry3d> guess;
+    std::optional<InertialHold> hold;
+    if (const auto g = imu.guess(t)) guess = g->T_Cprev_Ccur, hold = g->hold;
     guessed += guess.has_value();
-    const FrameStatus st =
-        tracker.track(run.renderFrame(i, noise, 6), t,
-                      guess ? std::optional<Eigen::Isometry3d>(guess->T_Cprev_Ccur) : std::nullopt,
-                      guess ? std::optional<InertialHold>(guess->hold) : std::nullopt);
+    const FrameStatus st = tracker.track(run.renderFrame(i, noise, 6), t, guess, hold);
     tracked += st.tracked;
     ASSERT_TRUE(imu.update(t, tracker.pose(), trackedPoseCovariance(st))) << imu.reason();
     est.push_back(st.T_W_C);

@@ -247,7 +247,8 @@ class CellOdometry {
   /// The constant-velocity pose for stamp_s from history_ (nullopt with too little of it).
   /// firm_only: fitted to the firm frames (CellOdometryConfig::velocity_firm_information) when
   /// the window holds at least three. inertial_W: stamp_s's InertialHold::displacement_W; the
-  /// line is then fitted to the positions less theirs, and the pose moved by the difference.
+  /// line is then fitted to the positions less theirs, and the pose moved by the difference
+  /// (nullopt with fewer than three firm frames).
   std::optional<Eigen::Isometry3d> smoothedPrediction(
       double stamp_s, bool firm_only = false, const Eigen::Vector3d* inertial_W = nullptr) const;
   /// relocalise(): the starts worth registering to convergence (T_ref_cur), screened from the
