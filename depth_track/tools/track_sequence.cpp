@@ -153,6 +153,10 @@ int main(int argc, char** argv) {
                  "IMU prior: sigmas of the accelerometer error taken off each interval's "
                  "acceleration (0 = off)")
       ->capture_default_str();
+  app.add_option("--imu-guess-gate", imu_config.guess_gate,
+                 "IMU prior: register from the last frame's motion while the IMU's guess lies "
+                 "within this many of its sigmas of it (0 = always the IMU's guess)")
+      ->capture_default_str();
   app.add_option("--imu-unmodelled", imu_config.unmodelled_accel_m_s2,
                  "IMU prior: acceleration the filter does not model, m/s^2")
       ->capture_default_str();

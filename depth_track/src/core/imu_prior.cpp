@@ -38,6 +38,8 @@ std::vector<std::string> ImuPriorConfig::validate() const {
     p.push_back("accel_bias_walk must be in (0, 1) m/s^2/sqrt(s), got " + fmt(accel_bias_walk));
   if (!(accel_significance >= 0.0 && accel_significance <= 10.0))
     p.push_back("accel_significance must be in [0, 10] sigmas, got " + fmt(accel_significance));
+  if (!(guess_gate >= 0.0 && guess_gate <= 10.0))
+    p.push_back("guess_gate must be in [0, 10] sigmas, got " + fmt(guess_gate));
   if (!(unmodelled_accel_m_s2 >= 0.0 && unmodelled_accel_m_s2 < 10.0))
     p.push_back("unmodelled_accel_m_s2 must be in [0, 10) m/s^2, got " +
                 fmt(unmodelled_accel_m_s2));
@@ -193,6 +195,9 @@ std::optional<ImuMotionPrior::Guess> ImuMotionPrior::guess(double stamp_s) const
   if (!next) return std::nullopt;
   Guess g;
   g.T_Cprev_Ccur = last_T_W_C_.inverse() * next->T_W_C;
+  g.hold.guess_tolerance_m = config_.guess_gate *
+                             std::sqrt(next->P.block<3, 3>(3, 3).trace() / 3.0) *
+                             (stamp_s - last_stamp_s_);
   g.hold.displacement_W =
       significant_d_ + significant_v_ * (stamp_s - last_stamp_s_) + next->significant_dp;
   return g;

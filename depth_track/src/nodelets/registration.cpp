@@ -77,6 +77,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     imu_config_.accel_bias_walk = r.getDouble("imu_accel_bias_walk");
     imu_config_.unmodelled_accel_m_s2 = r.getDouble("imu_unmodelled_accel");
     imu_config_.accel_significance = r.getDouble("imu_accel_significance");
+    imu_config_.guess_gate = r.getDouble("imu_guess_gate");
     imu_config_.position_floor_m = r.getDouble("imu_position_floor");
     imu_config_.rotation_floor_rad = r.getDouble("imu_rotation_floor");
     imu_config_.gyro_bias_walk = r.getDouble("imu_gyro_bias_walk");

@@ -173,6 +173,10 @@ std::vector<NodeParamSpec> makeParams() {
                     "an interval's acceleration is taken as smaller by this many sigmas of the "
                     "accelerometer error the filter still has (0 = off)",
                     d.accel_significance, 0.0, 10.0));
+    p.push_back(num("registration", "imu_guess_gate", "sigmas",
+                    "the registration starts from the last frame's motion while the IMU's guess "
+                    "lies within this many of its sigmas of it (0 = always the IMU's guess)",
+                    d.guess_gate, 0.0, 10.0));
     p.push_back(num("registration", "imu_unmodelled_accel", "m/s^2",
                     "acceleration the IMU filter does not model (the tracked orientation's tilt "
                     "turning gravity, timing)",

@@ -11,6 +11,7 @@
 #include "depth_track/core/se3.hpp"
 #include "depth_track/core/sim/imu.hpp"
 #include "depth_track/core/sim/rendered_run.hpp"
+#include "depth_track/core/tracker.hpp"
 
 using namespace depth_track;
 
@@ -376,6 +377,45 @@ TEST(ImuPrior, TheHoldsDisplacementSumsTheSignificantAccelerations) {
       ASSERT_TRUE(prior.update(t, pose, smallCov()));
     }
   }
+}
+
+// The guess gate (ImuPriorConfig::guess_gate): the tracker registers from the last frame's motion
+// while the IMU's guess lies within guess_gate standard deviations of the guess's displacement
+// (the filter's velocity sigma times the interval) of it. After a still start that sigma is a
+// fraction of a millimetre per 30 Hz frame; the tolerance scales with the gate (0: none, the
+// guess always), and the config and the tracker refuse what cannot be a tolerance.
+TEST(ImuPrior, TheGuessToleranceIsTheGateTimesTheGuessSigma) {
+  double tol[3];
+  const double gates[3] = {0.0, 3.0, 6.0};
+  for (int k = 0; k < 3; ++k) {
+    ImuPriorConfig cfg;
+    cfg.guess_gate = gates[k];
+    ImuMotionPrior prior(cfg);
+    int j = 0;
+    for (; j <= 67; ++j) prior.add({j * 0.005, Eigen::Vector3d::Zero(), {0, 0, 9.80665}});
+    ASSERT_TRUE(prior.update(0.3, Eigen::Isometry3d::Identity(), smallCov()));
+    const auto g = prior.guess(0.3 + 1.0 / 30);
+    ASSERT_TRUE(g.has_value());
+    tol[k] = g->hold.guess_tolerance_m;
+  }
+  std::printf("guess tolerance at gate 3 after a still start: %.4f mm\n", 1e3 * tol[1]);
+  EXPECT_EQ(tol[0], 0.0);
+  EXPECT_GT(tol[1], 1e-5);
+  EXPECT_LT(tol[1], 2e-3);
+  EXPECT_NEAR(tol[2], 2.0 * tol[1], 1e-12);
+
+  for (const double bad : {-1.0, 10.5, std::nan("")}) {
+    ImuPriorConfig cfg;
+    cfg.guess_gate = bad;
+    EXPECT_FALSE(cfg.validate().empty()) << bad;
+  }
+  const sim::RenderedRun run = sim::makeRun("wall_slide");
+  Tracker tracker(run.intrinsics, TrackerConfig{});
+  const DepthImage frame = run.renderFrame(0, sim::NoiseConfig::forModel(sim::NoiseModel::kNone), 1);
+  InertialHold bad_hold;
+  bad_hold.guess_tolerance_m = -1e-3;
+  EXPECT_THROW(tracker.track(frame, 0.0, Eigen::Isometry3d::Identity(), bad_hold),
+               std::invalid_argument);
 }
 
 // The untracked frame: the filter carries on with the IMU alone, and a frame's pose covariance

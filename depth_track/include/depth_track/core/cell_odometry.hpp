@@ -113,6 +113,9 @@ struct InertialHold {
   /// The camera's displacement from the accelerations the IMU read as significant (past its soft
   /// threshold), summed since the prior started, at this frame (world, m).
   Eigen::Vector3d displacement_W = Eigen::Vector3d::Zero();
+  /// Register from the last frame's motion instead of the guess when the two put the camera
+  /// within this distance of each other (m; 0 = always from the guess). ImuPriorConfig::guess_gate.
+  double guess_tolerance_m = 0.0;
 };
 
 /// TRACKING: the last frame registered. LOST: it did not (or no usable frame came yet); the pose

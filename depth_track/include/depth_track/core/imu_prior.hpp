@@ -63,6 +63,13 @@ struct ImuPriorConfig {
   /// what it cannot tell from a constant velocity does not build up over a view that cannot
   /// correct it. A start from rest, a braking robot read far above it.
   double accel_significance = 3.0;
+  /// The registration starts from the last frame's motion, not from the IMU's guess, while the
+  /// two put the camera within this many standard deviations of the guess's displacement (the
+  /// filter's velocity uncertainty over the interval) of each other (0 = always the IMU's
+  /// guess): a constant motion is then what the IMU reads too, and the last frame's motion,
+  /// which follows what the view fixed, is the better start where it fixes little. A start or
+  /// a stop reads far above it.
+  double guess_gate = 3.0;
   /// Standard deviation added to a tracked position's own (the registration's covariance, which
   /// the basin probe widens along a direction it could not confirm), m.
   double position_floor_m = 0.002;
