@@ -146,23 +146,7 @@ int main(int argc, char** argv) {
                  "rendered runs: a camera IMU as motion prior, its readings simulated along the "
                  "run: bmi055 (a D435i's / D455's, noise and bias) | none (exact readings)");
   app.add_option("--imu-seed", imu_seed, "seed of the simulated IMU's noise and bias (0 = --seed)");
-  app.add_option("--imu-position-floor", imu_config.position_floor_m,
-                 "IMU prior: m added to a tracked position's standard deviation")
-      ->capture_default_str();
-  app.add_option("--imu-significance", imu_config.accel_significance,
-                 "IMU prior: sigmas of the accelerometer error taken off each interval's "
-                 "acceleration (0 = off)")
-      ->capture_default_str();
-  app.add_option("--imu-guess-gate", imu_config.guess_gate,
-                 "IMU prior: register from the last frame's motion while the IMU's guess lies "
-                 "within this many of its sigmas of it (0 = always the IMU's guess)")
-      ->capture_default_str();
-  app.add_option("--imu-unmodelled", imu_config.unmodelled_accel_m_s2,
-                 "IMU prior: acceleration the filter does not model, m/s^2")
-      ->capture_default_str();
-  app.add_option("--imu-bias", imu_config.accel_bias_m_s2,
-                 "IMU prior: largest accelerometer bias expected, m/s^2")
-      ->capture_default_str();
+  tool_options::addImuOptions(app, imu_config);
 
   // Tracker and map options, shared with evaluate_bag.
   tool_options::TrackingOptions options;

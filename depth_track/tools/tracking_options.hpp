@@ -16,6 +16,7 @@
 #include "depth_track/core/camera.hpp"
 #include "depth_track/core/depth_correction.hpp"
 #include "depth_track/core/depth_image.hpp"
+#include "depth_track/core/imu_prior.hpp"
 #include "depth_track/core/map/mapper.hpp"
 #include "depth_track/core/map/mapper_params.hpp"
 #include "depth_track/core/tracker.hpp"
@@ -128,6 +129,33 @@ inline void addTrackerParamOptions(CLI::App& app, TrackingOptions& o) {
                                  ->default_str(p.get(tracker_defaults))
                                  ->group("Tracker");
   }
+}
+
+/// The camera-IMU prior's filter settings (track_sequence --imu-sim, evaluate_bag --motion-prior
+/// imu), bound to `c` (which must outlive the parse; its T_C_I is the tool's to set).
+inline void addImuOptions(CLI::App& app, ImuPriorConfig& c) {
+  app.add_option("--imu-position-floor", c.position_floor_m,
+                 "IMU prior: m added to a tracked position's standard deviation")
+      ->capture_default_str()
+      ->group("IMU prior");
+  app.add_option("--imu-significance", c.accel_significance,
+                 "IMU prior: sigmas of the accelerometer error taken off each interval's "
+                 "acceleration (0 = off)")
+      ->capture_default_str()
+      ->group("IMU prior");
+  app.add_option("--imu-guess-gate", c.guess_gate,
+                 "IMU prior: register from the last frame's motion while the IMU's guess lies "
+                 "within this many of its sigmas of it (0 = always the IMU's guess)")
+      ->capture_default_str()
+      ->group("IMU prior");
+  app.add_option("--imu-unmodelled", c.unmodelled_accel_m_s2,
+                 "IMU prior: acceleration the filter does not model, m/s^2")
+      ->capture_default_str()
+      ->group("IMU prior");
+  app.add_option("--imu-bias", c.accel_bias_m_s2,
+                 "IMU prior: largest accelerometer bias expected, m/s^2")
+      ->capture_default_str()
+      ->group("IMU prior");
 }
 
 /// Declares the shared options on `app`, bound to `o` (which must outlive the parse).

@@ -338,6 +338,8 @@ int main(int argc, char** argv) {
                  "sensor_msgs/Imu topic for --motion-prior imu (gyro and accelerometer in one "
                  "message); its frame's mount on the depth frame from /tf_static")
       ->capture_default_str();
+  ImuPriorConfig imu_config;  // its mount (T_C_I) from the bag's /tf_static
+  tool_options::addImuOptions(app, imu_config);
   tool_options::TrackingOptions options;
   tool_options::addTrackingOptions(app, options);
   CLI11_PARSE(app, argc, argv);
@@ -566,7 +568,7 @@ int main(int argc, char** argv) {
         throw std::invalid_argument("--motion-prior imu: " + imu_topic + " holds " +
                                     std::to_string(imu.samples.size()) +
                                     " usable sensor_msgs/Imu messages (give --imu-topic)");
-      ImuPriorConfig ic;
+      ImuPriorConfig ic = imu_config;
       const auto T_C_I = bag_run::detail::chain(streams.static_tf, optical_frame, imu.frame_id);
       if (!T_C_I && imu.frame_id != optical_frame)
         throw std::invalid_argument("--motion-prior imu: no " + optical_frame + " -> " +
