@@ -153,7 +153,7 @@ inline void addImuOptions(CLI::App& app, ImuPriorConfig& c) {
       ->capture_default_str()
       ->group("IMU prior");
   app.add_option("--imu-bias", c.accel_bias_m_s2,
-                 "IMU prior: largest accelerometer bias expected, m/s^2")
+                 "IMU prior: accelerometer bias expected per axis (standard deviation), m/s^2")
       ->capture_default_str()
       ->group("IMU prior");
 }

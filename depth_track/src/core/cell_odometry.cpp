@@ -251,17 +251,6 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     motion = velocity_T_Cprev_Ccur_;
   }
   const Eigen::Isometry3d T_W_pred = T_W_C_ * motion;
-  // Where the registration starts. An IMU's guess gives way to the last frame's motion where the
-  // two agree within the guess's own uncertainty (InertialHold::guess_tolerance_m): along
-  // directions the view fixes only weakly the fit ends near its start, and there the filter's
-  // velocity wanders more than the motion the view last fixed (docs/tracking.md, "What the IMU
-  // still costs on wall_slide"). The held directions' prior stays the IMU's (below).
-  Eigen::Isometry3d T_W_start = T_W_pred;
-  if (hold && hold->guess_tolerance_m > 0.0) {
-    const Eigen::Isometry3d last_motion = T_W_C_ * velocity_T_Cprev_Ccur_;
-    if ((last_motion.translation() - T_W_pred.translation()).norm() <= hold->guess_tolerance_m)
-      T_W_start = last_motion;
-  }
 
   if (!reference_) {
     if (st.cells < config_.registration.min_matches) {
@@ -288,6 +277,17 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
   }
 
   const auto t1 = std::chrono::steady_clock::now();
+  // Where the registration starts. An IMU's guess gives way to the last frame's motion where the
+  // two agree within the guess's own uncertainty (InertialHold::guess_tolerance_m): along
+  // directions the view fixes only weakly the fit ends near its start, and there the filter's
+  // velocity wanders more than the motion the view last fixed (docs/tracking.md, "What the IMU
+  // still costs on wall_slide"). The held directions' prior stays the IMU's (below).
+  Eigen::Isometry3d T_W_start = T_W_pred;
+  if (hold && hold->guess_tolerance_m > 0.0) {
+    const Eigen::Isometry3d last_motion = T_W_C_ * velocity_T_Cprev_Ccur_;
+    if ((last_motion.translation() - T_W_pred.translation()).norm() <= hold->guess_tolerance_m)
+      T_W_start = last_motion;
+  }
   Eigen::Isometry3d guess = T_W_Cref_.inverse() * T_W_start;
   // The smoothed prediction the held directions would follow, and how good it has been.
   const std::optional<Eigen::Isometry3d> smoothed = prior_T_Cprev_Ccur || !config_.constant_velocity
