@@ -132,30 +132,24 @@ inline void addTrackerParamOptions(CLI::App& app, TrackingOptions& o) {
 }
 
 /// The camera-IMU prior's filter settings (track_sequence --imu-sim, evaluate_bag --motion-prior
-/// imu), bound to `c` (which must outlive the parse; its T_C_I is the tool's to set).
+/// imu) as --imu-<name>, one per row of imuPriorParams() (the graph's ~imu_<name>), bound to `c`
+/// (which must outlive the parse; its T_C_I is the tool's to set). A value that is not a number
+/// is refused at the parse; the ranges are the config's validate(), when the prior is built.
 inline void addImuOptions(CLI::App& app, ImuPriorConfig& c) {
-  app.add_option("--imu-position-floor", c.position_floor_m,
-                 "IMU prior: m added to a tracked position's standard deviation")
-      ->capture_default_str()
-      ->group("IMU prior");
-  app.add_option("--imu-significance", c.accel_significance,
-                 "IMU prior: sigmas of the accelerometer error taken off each interval's "
-                 "acceleration (0 = off)")
-      ->capture_default_str()
-      ->group("IMU prior");
-  app.add_option("--imu-guess-gate", c.guess_gate,
-                 "IMU prior: register from the last frame's motion while the IMU's guess lies "
-                 "within this many of its sigmas of it (0 = always the IMU's guess)")
-      ->capture_default_str()
-      ->group("IMU prior");
-  app.add_option("--imu-unmodelled", c.unmodelled_accel_m_s2,
-                 "IMU prior: acceleration the filter does not model, m/s^2")
-      ->capture_default_str()
-      ->group("IMU prior");
-  app.add_option("--imu-bias", c.accel_bias_m_s2,
-                 "IMU prior: accelerometer bias expected per axis (standard deviation), m/s^2")
-      ->capture_default_str()
-      ->group("IMU prior");
+  for (const ImuParamSpec& p : imuPriorParams()) {
+    app.add_option_function<std::string>(
+           "--imu-" + dashed(p.name),
+           [&c, p](const std::string& v) {
+             try {
+               p.set(c, v);
+             } catch (const std::invalid_argument& e) {
+               throw CLI::ValidationError("--imu-" + dashed(p.name), e.what());
+             }
+           },
+           "IMU prior: " + p.help + (p.unit.empty() ? "" : " [" + p.unit + "]"))
+        ->default_str(p.get(c))
+        ->group("IMU prior");
+  }
 }
 
 /// Declares the shared options on `app`, bound to `o` (which must outlive the parse).

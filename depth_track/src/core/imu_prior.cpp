@@ -20,6 +20,56 @@ std::string fmt(double x) {
 }
 }  // namespace
 
+namespace {
+template <typename Member>
+ImuParamSpec num(const char* name, const char* unit, const char* help, Member member) {
+  return numParam<ImuPriorConfig>(name, unit, help, member);
+}
+using C = ImuPriorConfig;
+std::vector<ImuParamSpec> makeImuParams() {
+  return {
+      num("init_window", "s",
+          "gravity from the mean accelerometer reading over this window before the first frame "
+          "(the camera still)",
+          [](C& c) -> double& { return c.init_window_s; }),
+      num("accel_noise_density", "m/s^2/sqrt(Hz)", "accelerometer white noise (BMI055: 0.0015)",
+          [](C& c) -> double& { return c.accel_noise_density; }),
+      num("accel_bias", "m/s^2",
+          "accelerometer bias expected per axis (standard deviation; taken in with gravity at the "
+          "start, told apart as the camera turns)",
+          [](C& c) -> double& { return c.accel_bias_m_s2; }),
+      num("accel_bias_walk", "m/s^2/sqrt(s)", "random walk of the bias and of the gravity error",
+          [](C& c) -> double& { return c.accel_bias_walk; }),
+      num("accel_significance", "sigmas",
+          "an interval's acceleration is taken as smaller by this many sigmas of the "
+          "accelerometer error the filter still has (0 = off)",
+          [](C& c) -> double& { return c.accel_significance; }),
+      num("guess_gate", "sigmas",
+          "the registration starts from the last frame's motion while the IMU's guess lies "
+          "within this many of its sigmas of it (0 = always the IMU's guess)",
+          [](C& c) -> double& { return c.guess_gate; }),
+      num("unmodelled_accel", "m/s^2",
+          "acceleration the IMU filter does not model (the tracked orientation's tilt turning "
+          "gravity, timing)",
+          [](C& c) -> double& { return c.unmodelled_accel_m_s2; }),
+      num("position_floor", "m",
+          "added to a tracked position's standard deviation in the IMU filter",
+          [](C& c) -> double& { return c.position_floor_m; }),
+      num("rotation_floor", "rad",
+          "added to a tracked rotation's standard deviation per frame when it corrects the "
+          "gyro's bias",
+          [](C& c) -> double& { return c.rotation_floor_rad; }),
+      num("gyro_bias_walk", "rad/s/sqrt(s)", "random walk of the gyro's bias",
+          [](C& c) -> double& { return c.gyro_bias_walk; }),
+  };
+}
+}  // namespace
+
+const std::vector<ImuParamSpec>& imuPriorParams() {
+  static const std::vector<ImuParamSpec> table = makeImuParams();
+  return table;
+}
+
 std::vector<std::string> ImuPriorConfig::validate() const {
   std::vector<std::string> p;
   if (!isRigid(T_C_I, 1e-6)) p.push_back("T_C_I is not a rigid transform");

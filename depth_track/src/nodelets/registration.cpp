@@ -71,16 +71,10 @@ class RegistrationNodelet : public nodelet::Nodelet {
     if (guess_child_frame_.empty()) guess_child_frame_ = base_frame_;
     guess_timeout_s_ = r.getDouble("guess_timeout");
     use_imu_ = r.getBool("imu");
-    imu_config_.init_window_s = r.getDouble("imu_init_window");
-    imu_config_.accel_noise_density = r.getDouble("imu_accel_noise_density");
-    imu_config_.accel_bias_m_s2 = r.getDouble("imu_accel_bias");
-    imu_config_.accel_bias_walk = r.getDouble("imu_accel_bias_walk");
-    imu_config_.unmodelled_accel_m_s2 = r.getDouble("imu_unmodelled_accel");
-    imu_config_.accel_significance = r.getDouble("imu_accel_significance");
-    imu_config_.guess_gate = r.getDouble("imu_guess_gate");
-    imu_config_.position_floor_m = r.getDouble("imu_position_floor");
-    imu_config_.rotation_floor_rad = r.getDouble("imu_rotation_floor");
-    imu_config_.gyro_bias_walk = r.getDouble("imu_gyro_bias_walk");
+    // ~imu_<name>: the filter's table (imu_prior.hpp), checked by its validate().
+    imu_config_ = r.table<ImuPriorConfig>(
+        pnh, imuPriorParams(), ImuPriorConfig{},
+        [](const ImuPriorConfig& c) { return c.validate(); }, "imu_");
     imu_timeout_s_ = r.getDouble("imu_timeout");
     static_tf_timeout_s_ = r.getDouble("static_tf_timeout");
     publish_tf_ = r.getBool("publish_tf");

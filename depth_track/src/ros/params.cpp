@@ -154,42 +154,16 @@ std::vector<NodeParamSpec> makeParams() {
                    "when both are set",
                    false));
   {
+    // The filter's settings from its table (imu_prior.hpp), as imu_<name>; their ranges are the
+    // config's validate(), which the registration nodelet runs on them (ParamReader::table).
     const ImuPriorConfig d;
-    p.push_back(num("registration", "imu_init_window", "s",
-                    "gravity from the mean accelerometer reading over this window before the "
-                    "first frame (the camera still)",
-                    d.init_window_s, 0.01, 10.0));
-    p.push_back(num("registration", "imu_accel_noise_density", "m/s^2/sqrt(Hz)",
-                    "accelerometer white noise (BMI055: 0.0015)", d.accel_noise_density, 1e-6,
-                    0.99));
-    p.push_back(num("registration", "imu_accel_bias", "m/s^2",
-                    "accelerometer bias expected per axis (standard deviation; taken in with "
-                    "gravity at the start, told apart as the camera turns)",
-                    d.accel_bias_m_s2, 0.0, 4.99));
-    p.push_back(num("registration", "imu_accel_bias_walk", "m/s^2/sqrt(s)",
-                    "random walk of the bias and of the gravity error", d.accel_bias_walk, 1e-6,
-                    0.99));
-    p.push_back(num("registration", "imu_accel_significance", "sigmas",
-                    "an interval's acceleration is taken as smaller by this many sigmas of the "
-                    "accelerometer error the filter still has (0 = off)",
-                    d.accel_significance, 0.0, 10.0));
-    p.push_back(num("registration", "imu_guess_gate", "sigmas",
-                    "the registration starts from the last frame's motion while the IMU's guess "
-                    "lies within this many of its sigmas of it (0 = always the IMU's guess)",
-                    d.guess_gate, 0.0, 10.0));
-    p.push_back(num("registration", "imu_unmodelled_accel", "m/s^2",
-                    "acceleration the IMU filter does not model (the tracked orientation's tilt "
-                    "turning gravity, timing)",
-                    d.unmodelled_accel_m_s2, 0.0, 9.99));
-    p.push_back(num("registration", "imu_position_floor", "m",
-                    "added to a tracked position's standard deviation in the IMU filter",
-                    d.position_floor_m, 1e-5, 0.99));
-    p.push_back(num("registration", "imu_rotation_floor", "rad",
-                    "added to a tracked rotation's standard deviation per frame when it "
-                    "corrects the gyro's bias",
-                    d.rotation_floor_rad, 1e-6, 0.099));
-    p.push_back(num("registration", "imu_gyro_bias_walk", "rad/s/sqrt(s)",
-                    "random walk of the gyro's bias", d.gyro_bias_walk, 1e-7, 0.099));
+    for (const ImuParamSpec& t : imuPriorParams()) {
+      NodeParamSpec q;
+      q.node = "registration", q.name = "imu_" + t.name, q.type = 'd', q.unit = t.unit;
+      q.help = t.help;
+      q.default_text = t.get(d);
+      p.push_back(q);
+    }
     p.push_back(num("registration", "imu_timeout", "s",
                     "wait this long for an IMU reading at or after a frame's stamp", 0.05, 0.0,
                     10.0));

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <optional>
+#include <set>
 
 #include "depth_track/core/cell_odometry.hpp"
 #include "depth_track/core/imu_prior.hpp"
@@ -310,6 +311,40 @@ TEST(ImuPrior, ConfigAndSimulatorCheckTheirInput) {
                                 sim::ImuNoiseConfig::none(), 1),
                std::invalid_argument);
   EXPECT_THROW(sim::ImuNoiseConfig::parse("bmi088"), std::invalid_argument);
+}
+
+// The settings table behind ~imu_<name> and --imu-<name>: every row reads back what it sets,
+// moves its own field of the config and no other, and a value that is not a number is refused
+// naming the row; a value out of range is left to validate(), which names the field.
+TEST(ImuPrior, EverySettingOfTheTableSetsItsOwnField) {
+  const ImuPriorConfig d;
+  ASSERT_EQ(imuPriorParams().size(), 10u);
+  std::set<std::string> names;
+  for (const ImuParamSpec& p : imuPriorParams()) {
+    SCOPED_TRACE(p.name);
+    EXPECT_TRUE(names.insert(p.name).second) << "declared twice";
+    EXPECT_FALSE(p.unit.empty());
+    ImuPriorConfig c;
+    const double v = 1.5 * std::stod(p.get(d));  // within every range from the default
+    p.set(c, param_text::format(v));
+    EXPECT_DOUBLE_EQ(std::stod(p.get(c)), v);
+    EXPECT_TRUE(c.validate().empty());
+    int changed = 0;
+    for (const ImuParamSpec& q : imuPriorParams()) changed += q.get(c) != q.get(d);
+    EXPECT_EQ(changed, 1);
+    try {
+      p.set(c, "fast");
+      FAIL() << "accepted 'fast'";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(p.name), std::string::npos) << e.what();
+    }
+  }
+  ImuPriorConfig c;
+  setParam(imuPriorParams(), c, "guess_gate", "-1", "IMU prior");
+  ASSERT_EQ(c.validate().size(), 1u);
+  EXPECT_NE(c.validate().front().find("guess_gate"), std::string::npos);
+  EXPECT_THROW(setParam(imuPriorParams(), c, "guess_gates", "1", "IMU prior"),
+               std::invalid_argument);
 }
 
 // The soft threshold (accel_significance): after a still start the filter knows the

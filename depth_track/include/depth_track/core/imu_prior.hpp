@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "depth_track/core/cell_odometry.hpp"
+#include "depth_track/core/param_table.hpp"
 
 namespace depth_track {
 
@@ -86,6 +87,12 @@ struct ImuPriorConfig {
 
   std::vector<std::string> validate() const;
 };
+
+/// The filter's settings a user tunes, as one table (param_table.hpp): the ROS parameters
+/// `imu_<name>` of the registration nodelet and the tools' `--imu-<name>` options are made from
+/// it. T_C_I (from tf or the bag), the start's still test and max_gap_s are not in it.
+using ImuParamSpec = BasicParamSpec<ImuPriorConfig>;
+const std::vector<ImuParamSpec>& imuPriorParams();
 
 class ImuMotionPrior {
  public:

@@ -78,10 +78,14 @@ class ParamReader {
   /// the defaults), then runs `validate` and names, for each problem, the parameters whose value
   /// alone causes it (each set parameter tried on its own against the defaults). Keys under
   /// `nh` that the table does not know are problems too (a typo must not pass silently).
+  /// With a `prefix` the rows are read as `prefix + name` from `nh` among other keys (a
+  /// nodelet's private ones: its nodeParams() rows, which the constructor checks), so keys the
+  /// table does not know are left alone.
   template <class Config>
   Config table(const ros::NodeHandle& nh, const std::vector<BasicParamSpec<Config>>& table,
                Config config,
-               const std::function<std::vector<std::string>(const Config&)>& validate);
+               const std::function<std::vector<std::string>(const Config&)>& validate,
+               const std::string& prefix = "");
 
   /// Adds a problem found elsewhere (e.g. a value combination the node checks itself).
   void problem(const std::string& text) { problems_.push_back(text); }
@@ -105,22 +109,24 @@ std::vector<std::string> keysUnder(const ros::NodeHandle& nh);
 template <class Config>
 Config ParamReader::table(const ros::NodeHandle& nh,
                           const std::vector<BasicParamSpec<Config>>& table, Config config,
-                          const std::function<std::vector<std::string>(const Config&)>& validate) {
+                          const std::function<std::vector<std::string>(const Config&)>& validate,
+                          const std::string& prefix) {
   const Config defaults = config;
   std::vector<std::pair<std::string, std::string>> set;  // (name, text)
-  for (const auto& key : keysUnder(nh)) {
-    bool known = false;
-    for (const auto& p : table) known = known || p.name == key;
-    if (!known) problems_.push_back(nh.resolveName(key) + ": unknown parameter");
-  }
+  if (prefix.empty())
+    for (const auto& key : keysUnder(nh)) {
+      bool known = false;
+      for (const auto& p : table) known = known || p.name == key;
+      if (!known) problems_.push_back(nh.resolveName(key) + ": unknown parameter");
+    }
   for (const auto& p : table) {
     std::string text;
-    if (!readText(nh, p.name, &text)) continue;
+    if (!readText(nh, prefix + p.name, &text)) continue;
     try {
       p.set(config, text);
       set.emplace_back(p.name, text);
     } catch (const std::invalid_argument& e) {
-      problems_.push_back(nh.resolveName(p.name) + " = '" + text + "': " + e.what());
+      problems_.push_back(nh.resolveName(prefix + p.name) + " = '" + text + "': " + e.what());
     }
   }
   for (const std::string& prob : validate(config)) {
@@ -130,7 +136,8 @@ Config ParamReader::table(const ros::NodeHandle& nh,
       for (const auto& p : table)
         if (p.name == name) p.set(alone, text);
       for (const std::string& q : validate(alone))
-        if (q == prob) who += (who.empty() ? "" : ", ") + nh.resolveName(name) + " = " + text;
+        if (q == prob)
+          who += (who.empty() ? "" : ", ") + nh.resolveName(prefix + name) + " = " + text;
     }
     problems_.push_back((who.empty() ? nh.getNamespace() + ": " : who + ": ") + prob);
   }
