@@ -97,9 +97,13 @@ class FusionNodelet : public nodelet::Nodelet {
     const auto map = ctx_->map.map();
     const std::size_t voxels = map ? map->occupiedCount() : 0;
     const double since = ros::WallTime::now().toSec() - last_publish_wall_s_;
-    if (fused_ > 0 && voxels == 0)
-      d.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                "frames were fused but the map is empty (range / region?)");
+    // A surface needs hits from hitsToOccupy() frames (two at the default threshold).
+    const int needed = map ? map->config().hitsToOccupy() : 1;
+    if (fused_ >= static_cast<std::uint64_t>(std::max(1, needed)) && voxels == 0)
+      d.summaryf(diagnostic_msgs::DiagnosticStatus::WARN,
+                 "%llu frames were fused but the map is empty (range / region?; a voxel is "
+                 "occupied after hits in %d frames)",
+                 static_cast<unsigned long long>(fused_.load()), needed);
     else
       d.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%zu occupied voxels", voxels);
     d.add("occupied voxels", voxels);

@@ -41,11 +41,15 @@ DepthImage planeDepth(const PinholeIntrinsics& K, const Eigen::Vector3d& n_C, do
   return d;
 }
 
+// One hit makes a voxel occupied (OctoMap's threshold 0.5), so that the voxels of a test's
+// single frame show in the map; the default threshold (two hits) has its own test
+// (OneFrameIsNotYetASurfaceAtTheDefaultThreshold).
 MapConfig unboundedConfig(double voxel_m, UpdateModel model) {
   MapConfig c;
   c.voxel_size_m = voxel_m;
   c.bounded = false;
   c.model = model;
+  c.occupancy_threshold = 0.5;
   return c;
 }
 
@@ -67,6 +71,42 @@ TEST(Fusion, FrontoParallelPlaneFillsOneVoxelLayer) {
   // Cross-section of the frustum at 2.0025 m: (640 / 525 * z) x (480 / 525 * z) metres.
   const double expected = (640.0 / 525 * 2.0025 / 0.005) * (480.0 / 525 * 2.0025 / 0.005);
   EXPECT_NEAR(static_cast<double>(map.occupiedCount()), expected, 0.01 * expected);
+}
+
+TEST(Fusion, OneFrameIsNotYetASurfaceAtTheDefaultThreshold) {
+  // The default threshold 0.8 (logit 1.39) takes two hits of 0.85: a voxel one frame hit is
+  // observed but not occupied, the same voxels hit by a second frame are, and a return that
+  // lands in a voxel once (a stray one) never makes it occupied.
+  MapConfig cfg = unboundedConfig(0.005, UpdateModel::kHitOnly);
+  cfg.occupancy_threshold = MapConfig().occupancy_threshold;
+  ASSERT_DOUBLE_EQ(cfg.occupancy_threshold, 0.8);
+  EXPECT_EQ(cfg.hitsToOccupy(), 2);
+  EXPECT_EQ(unboundedConfig(0.005, UpdateModel::kHitOnly).hitsToOccupy(), 1);
+  MapConfig three = cfg;
+  three.occupancy_threshold = 0.9;  // logit 2.20: three hits of 0.85
+  EXPECT_EQ(three.hitsToOccupy(), 3);
+  VoxelMap two_hits(cfg);
+  VoxelMap one_hit(unboundedConfig(0.005, UpdateModel::kHitOnly));
+  const DepthImage wall = planeDepth(kK, Eigen::Vector3d::UnitZ(), 2.0025);
+  two_hits.fuse(wall, kK, Eigen::Isometry3d::Identity());
+  one_hit.fuse(wall, kK, Eigen::Isometry3d::Identity());
+  EXPECT_GT(one_hit.occupiedCount(), 100000u);
+  EXPECT_EQ(two_hits.occupiedCount(), 0u);
+  const VoxelKey on_wall = two_hits.keyOf(kK.backProject(320, 240, 2.0025f).cast<double>());
+  EXPECT_EQ(two_hits.state(on_wall), VoxelState::kFree);  // observed, below 0.8
+  // A second frame: the wall again, and a stray return 10 cm in front of it at one pixel.
+  DepthImage second = wall;
+  second.at(320, 240) = 1.9025f;
+  two_hits.fuse(second, kK, Eigen::Isometry3d::Identity());
+  auto keySet = [](const VoxelMap& m) {
+    std::set<std::tuple<int, int, int>> out;
+    for (const VoxelKey& k : m.occupiedKeys()) out.insert({k.x(), k.y(), k.z()});
+    return out;
+  };
+  EXPECT_EQ(keySet(two_hits), keySet(one_hit));
+  const VoxelKey stray = two_hits.keyOf(kK.backProject(320, 240, 1.9025f).cast<double>());
+  EXPECT_EQ(stray.z(), 380);
+  EXPECT_EQ(two_hits.state(stray), VoxelState::kFree);
 }
 
 TEST(Fusion, TiltedNoisyPlaneGivesVoxelsOnThePlaneOnly) {

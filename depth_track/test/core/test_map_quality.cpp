@@ -37,15 +37,16 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
   MapperConfig mc;
   mc.range = run.range;
-  // The map as configured by default (one hit makes a voxel occupied), and the same with every
-  // return fused where it was measured (snap_cell 0), for comparison.
+  // For comparison: one hit makes a voxel occupied (OctoMap's 0.5, the default until
+  // 2026-12-06), and the same with every return fused where it was measured (snap_cell 0).
+  mc.map.occupancy_threshold = 0.5;
   Mapper one_hit(run.intrinsics, mc, run.T_W_C.front());
   mc.map.snap_cell_px = 0;
   Mapper unsnapped(run.intrinsics, mc, run.T_W_C.front());
-  mc.map.snap_cell_px = MapConfig().snap_cell_px;
-  // A voxel counts as occupied after two hits (logit(0.8) = 1.39 > 0.85 per hit): sensor
-  // outliers that hit a voxel once do not make a surface.
-  mc.map.occupancy_threshold = 0.8;
+  // The default: a voxel counts as occupied after two hits (logit(0.8) = 1.39 > 0.85 per hit):
+  // sensor outliers that hit a voxel once do not make a surface.
+  mc.map = MapConfig();
+  ASSERT_DOUBLE_EQ(mc.map.occupancy_threshold, 0.8);
   Mapper tracked(run.intrinsics, mc, run.T_W_C.front());
   Mapper truth(run.intrinsics, mc, run.T_W_C.front());
   Tracker tracker(run.intrinsics, TrackerConfig{}, run.T_W_C.front());
@@ -73,7 +74,7 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   const SurfaceQuality q_strict = surfaceQuality(tracked.map(), dist, surface, s);
   const SurfaceQuality q_one_hit = surfaceQuality(one_hit.map(), dist, surface, tol);
   const SurfaceQuality q_unsnapped = surfaceQuality(unsnapped.map(), dist, surface, tol);
-  std::printf("default one-hit threshold: precision %.2f %% completeness %.2f %%\n",
+  std::printf("one-hit threshold: precision %.2f %% completeness %.2f %%\n",
               100 * q_one_hit.precision, 100 * q_one_hit.completeness);
   std::printf("one-hit, returns fused as measured (snap_cell 0): precision %.2f %% completeness "
               "%.2f %%\n",

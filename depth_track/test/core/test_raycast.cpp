@@ -44,6 +44,7 @@ TEST(Raycast, OneFrameMapReproducesItsDepthWithinAVoxel) {
     MapConfig cfg;
     cfg.voxel_size_m = s;
     cfg.model = UpdateModel::kHitOnly;
+    cfg.occupancy_threshold = 0.5;  // one hit: the single frame shows (the default takes two)
     VoxelMap map(cfg);
     map.placeRegion(run.T_W_C[0]);
     map.fuse(d, run.intrinsics, run.T_W_C[0]);
@@ -120,7 +121,10 @@ TEST(Raycast, SkippingEqualsReferenceMarchOnAFiveMillimetreMap) {
   VoxelMap map{MapConfig{}};
   map.placeRegion(run.T_W_C[0]);
   const auto noise = sim::NoiseConfig::forModel(sim::NoiseModel::kL515);
-  for (std::size_t i = 0; i < run.size(); i += 16)
+  // Every 8th frame: at the default threshold a voxel takes two hits, so a surface must be seen
+  // by two of the fused frames (every 16th, as before the default changed, leaves 70 % of pose
+  // 0's pixels).
+  for (std::size_t i = 0; i < run.size(); i += 8)
     map.fuse(run.renderFrame(i, noise, 42, 2), run.intrinsics, run.T_W_C[i]);
   const PinholeIntrinsics k = downsampledIntrinsics(run.intrinsics, 2);
   for (const std::size_t i : {std::size_t{0}, run.size() / 3}) {
@@ -131,12 +135,17 @@ TEST(Raycast, SkippingEqualsReferenceMarchOnAFiveMillimetreMap) {
       valid += ref.data[p] > 0;
       differ += std::abs(fast.data[p] - ref.data[p]) > 1e-4f;
     }
-    EXPECT_GT(valid, ref.data.size() * 9 / 10) << "pose " << i;
+    // Measured 83.0-83.2 % at pose 0 (its edges are seen by the first fused frame only) and
+    // 95.9 % at pose 34 over noise seeds 42, 7 and 1234 (one hit: 94.4 and 99.0 %).
+    std::printf("pose %zu: %zu of %zu px valid\n", i, valid, ref.data.size());
+    EXPECT_GT(valid, ref.data.size() * 8 / 10) << "pose " << i;
     EXPECT_LE(differ, ref.data.size() / 10000) << "pose " << i;
     // Against the noise-free scene: the run-weighted depth sits on the surface, not on the near
-    // side of the noise shell (docs/mapping.md). Measured 3.49-3.50 mm at pose 0 and 2.69-2.72 mm
-    // at pose 34 over noise seeds 42, 7 and 1234; the guard keeps 0.5 mm (ten seed spreads) above
-    // that, well under the 7.8 mm that "first occupied voxel" left on the chair map.
+    // side of the noise shell (docs/mapping.md). Measured 1.31-1.32 mm at pose 0 and 0.82-0.85 mm
+    // at pose 34 over noise seeds 42, 7 and 1234 (seed 42 with one hit: 0.84 / 0.54 mm; one hit
+    // and every 16th frame, before 2026-12-06: 3.49-3.50 / 2.69-2.72 mm); the guard keeps 0.5 mm
+    // (ten seed spreads) above that, well under the 7.8 mm that "first occupied voxel" left on the
+    // chair map.
     const DepthImage truth = downsampleDepth(
         run.renderFrame(i, sim::NoiseConfig::forModel(sim::NoiseModel::kNone), 1, 2), 2);
     std::vector<double> err;
@@ -148,7 +157,7 @@ TEST(Raycast, SkippingEqualsReferenceMarchOnAFiveMillimetreMap) {
     std::nth_element(err.begin(), err.begin() + err.size() / 2, err.end());
     std::printf("pose %zu: median |virtual - true| %.2f mm over %zu px\n", i,
                 1000.0 * err[err.size() / 2], err.size());
-    EXPECT_LT(err[err.size() / 2], 0.004) << "pose " << i;
+    EXPECT_LT(err[err.size() / 2], 0.0018) << "pose " << i;
   }
 }
 
@@ -158,6 +167,7 @@ TEST(Raycast, RangeEmptyMapAndBadInput) {
   MapConfig cfg;
   cfg.bounded = false;
   cfg.voxel_size_m = 0.01;
+  cfg.occupancy_threshold = 0.5;  // one hit: the single frame shows (the default takes two)
   VoxelMap map(cfg);
   EXPECT_EQ(map.raycast(k, Eigen::Isometry3d::Identity(), DepthRange{}).countValid(), 0u);
   map.fuse(DepthImage(64, 48, 1.005f), k, Eigen::Isometry3d::Identity());  // wall at 1 m
@@ -187,6 +197,7 @@ TEST(Raycast, MinAgeFramesLeavesOutRecentlyBornBlocks) {
   MapConfig cfg;
   cfg.model = UpdateModel::kHitOnly;
   cfg.bounded = false;
+  cfg.occupancy_threshold = 0.5;  // one hit: each single frame shows (the default takes two)
   VoxelMap first_only(cfg), both(cfg);
   const DepthImage d0 = run.renderFrame(0, clean, 1, 2);
   const DepthImage d1 = sim::renderDepth(run.scene, run.intrinsics, T, run.range);

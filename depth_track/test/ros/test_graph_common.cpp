@@ -196,6 +196,7 @@ TEST(MapSession, ReadersKeepTheirMapAcrossAResetAndStagesFollowTheNewOne) {
   MapperConfig c;
   c.map.bounded = false;
   c.map.voxel_size_m = 0.01;
+  c.map.occupancy_threshold = 0.5;  // one hit: each single frame shows (the default takes two)
   const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
   auto makeFuser = [&](VoxelMap& m) { return std::make_unique<MapFuser>(m, K); };
   auto makeCaster = [&](const VoxelMap& m) {

@@ -39,6 +39,12 @@ std::string toString(UpdateModel model) {
   return model == UpdateModel::kHitOnly ? "hit_only" : "probabilistic";
 }
 
+int MapConfig::hitsToOccupy() const {
+  const double l_hit = logit(prob_hit), l_occ = logit(occupancy_threshold);
+  if (!(l_hit > 0.0)) return 0;  // hits never occupy (validate() refuses such a config)
+  return std::max(1, static_cast<int>(std::floor(l_occ / l_hit)) + 1);
+}
+
 std::vector<std::string> MapConfig::validate() const {
   std::vector<std::string> p;
   if (!(std::isfinite(voxel_size_m) && voxel_size_m >= 1e-4 && voxel_size_m <= 1.0))
