@@ -18,9 +18,8 @@ std::string fmt(double x) {
   s << x;
   return s.str();
 }
-}  // namespace
 
-namespace {
+// The filter's settings table (imuPriorParams).
 template <typename Member>
 ImuParamSpec num(const char* name, const char* unit, const char* help, Member member) {
   return numParam<ImuPriorConfig>(name, unit, help, member);
