@@ -30,6 +30,12 @@ inline std::string dashed(std::string s) {
   return s;
 }
 
+/// An option's help: a table row's meaning and, when it has one, its unit in brackets.
+template <class Spec>
+std::string optionHelp(const Spec& p) {
+  return p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
+}
+
 /// What the options hold after parsing; resolve the configs through the accessors.
 struct TrackingOptions {
   std::string config_path;            ///< --config: YAML of tracker parameters
@@ -124,10 +130,10 @@ inline void addTrackerParamOptions(CLI::App& app, TrackingOptions& o) {
                  "YAML file of tracker parameters (see config/tracker.yaml)");
   const TrackerConfig tracker_defaults;
   for (const ParamSpec& p : trackerParams()) {
-    const std::string help = p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
-    o.tracker_opts[p.name] = app.add_option("--" + dashed(p.name), o.tracker_values[p.name], help)
-                                 ->default_str(p.get(tracker_defaults))
-                                 ->group("Tracker");
+    o.tracker_opts[p.name] =
+        app.add_option("--" + dashed(p.name), o.tracker_values[p.name], optionHelp(p))
+            ->default_str(p.get(tracker_defaults))
+            ->group("Tracker");
   }
 }
 
@@ -146,7 +152,7 @@ inline void addImuOptions(CLI::App& app, ImuPriorConfig& c) {
                throw CLI::ValidationError("--imu-" + dashed(p.name), e.what());
              }
            },
-           "IMU prior: " + p.help + (p.unit.empty() ? "" : " [" + p.unit + "]"))
+           "IMU prior: " + optionHelp(p))
         ->default_str(p.get(c))
         ->group("IMU prior");
   }
@@ -170,7 +176,7 @@ inline void addTrackingOptions(CLI::App& app, TrackingOptions& o) {
   // --map and --loop-closure on builds the map.
   const MapperConfig mapper_defaults;
   for (const MapperParamSpec& p : mapperParams()) {
-    std::string help = p.help + (p.unit.empty() ? "" : " [" + p.unit + "]");
+    std::string help = optionHelp(p);
     if (p.name == "raycast_min" || p.name == "raycast_max") help += " (default: --d-min / --d-max)";
     o.mapper_opts[p.name] = app.add_option("--" + dashed(p.name), o.mapper_values[p.name], help)
                                 ->default_str(p.get(mapper_defaults))

@@ -98,8 +98,8 @@ class FusionNodelet : public nodelet::Nodelet {
     const std::size_t voxels = map ? map->occupiedCount() : 0;
     const double since = ros::WallTime::now().toSec() - last_publish_wall_s_;
     // A surface needs hits from hitsToOccupy() frames (two at the default threshold).
-    const int needed = map ? map->config().hitsToOccupy() : 1;
-    if (fused_ >= static_cast<std::uint64_t>(std::max(1, needed)) && voxels == 0)
+    const int needed = map ? std::max(1, map->config().hitsToOccupy()) : 1;
+    if (fused_ >= static_cast<std::uint64_t>(needed) && voxels == 0)
       d.summaryf(diagnostic_msgs::DiagnosticStatus::WARN,
                  "%llu frames were fused but the map is empty (range / region?; a voxel is "
                  "occupied after hits in %d frames)",
