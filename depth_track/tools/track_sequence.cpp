@@ -236,8 +236,8 @@ int main(int argc, char** argv) {
       std::fprintf(
           status,
           "stamp_s,tracked,cells,candidates,matches,fm_matches,duplicates_broken,iterations,"
-          "error_rms_m,degenerate,weakest_information,unconfirmed,probe_spread_m,new_keyframe,"
-          "ms_prefilter,ms_reduce,ms_register,ms_total,failure\n");
+          "error_rms_m,degenerate,weakest_information,unconfirmed,probe_spread_m,deep_kept,"
+          "new_keyframe,ms_prefilter,ms_reduce,ms_register,ms_total,failure\n");
     }
     const std::size_t n =
         max_frames > 0 ? std::min<std::size_t>(max_frames, source->size()) : source->size();
@@ -258,6 +258,7 @@ int main(int argc, char** argv) {
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
     int retried = 0, retry_kept = 0;             // registered again from the previous pose
     int probed = 0, unconfirmed = 0;             // the basin probe
+    int deep_retried = 0, deep_kept = 0;         // flagged frames registered with deep returns up
     std::map<std::string, int> failures;
     long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
     for (std::size_t i = 0; i < n; ++i) {
@@ -293,6 +294,8 @@ int main(int argc, char** argv) {
           retry_kept += st.retry_kept;
           probed += st.basin_probed;
           unconfirmed += st.unconfirmed_directions > 0;
+          deep_retried += st.basin_deep_retried;
+          deep_kept += st.basin_deep_kept;
           if (mapper) {
             // Accepted corrections move the tracker (its world is the map frame), which keeps
             // this tool's trajectories as they were; the graph keeps the tracker in odom and a
@@ -344,12 +347,12 @@ int main(int argc, char** argv) {
       }
       if (status)
         std::fprintf(status,
-                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.5f,%d,%.3f,%.3f,%.3f,%.3f,"
+                     "%.6f,%d,%d,%d,%d,%d,%d,%d,%.6f,%d,%.3f,%d,%.5f,%d,%d,%.3f,%.3f,%.3f,%.3f,"
                      "\"%s\"\n",
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
                      st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
                      st.weakest_information, st.unconfirmed_directions, st.probe_spread_m,
-                     st.new_keyframe, st.ms_prefilter, st.ms_reduce, st.ms_register, st.ms_total,
+                     st.basin_deep_kept ? 1 : 0, st.new_keyframe, st.ms_prefilter, st.ms_reduce, st.ms_register, st.ms_total,
                      st.failure.c_str());
     }
     if (status) std::fclose(status);
@@ -383,10 +386,15 @@ int main(int argc, char** argv) {
     if (retried > 0)
       std::printf("registered again from the previous pose: %d frames, %d kept (retry_pairs_below)\n",
                   retried, retry_kept);
-    if (probed > 0)
+    if (probed > 0) {
       std::printf("basin probe: %d frames probed, %d flagged unconfirmed (a direction the view "
                   "does not fix, the pose kept; basin_probe_below)\n",
                   probed, unconfirmed);
+      if (deep_retried > 0)
+        std::printf("basin probe: %d frames found unfixed registered again with the deep returns "
+                    "weighted up, %d of them confirmed and kept (basin_deep_floor)\n",
+                    deep_retried, deep_kept);
+    }
     if (imu) {
       std::printf("imu prior (simulated %s): %d of %zu frames guessed by it", imu_noise.c_str(),
                   imu_guesses, n);

@@ -72,6 +72,8 @@ std::vector<std::string> CellOdometryConfig::validate() const {
     p.push_back("basin_probe_step must lie in (0, 0.1] m");
   if (!(basin_probe_tolerance_m > 0.0 && basin_probe_tolerance_m < basin_probe_step_m))
     p.push_back("basin_probe_tolerance must lie in (0, basin_probe_step) m");
+  if (!(basin_deep_floor >= 0.0 && basin_deep_floor <= 1.0))
+    p.push_back("basin_deep_floor must lie in [0, 1] (0 = off)");
   for (const auto& s : relocalise.validate()) p.push_back(s);
   for (const auto& s : model.validate()) p.push_back(s);
   return p;
@@ -316,16 +318,18 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     // graph's covered-lens run: 22 mm off, lost again 12 frames later). The keyframe's own
     // cells are the reference until tracking resumes, as without the model.
     const bool raw = raw_reference_ && state_ != TrackingState::kTracking;
-    const auto registerFrom = [&](const Eigen::Isometry3d& g) {
+    const auto registerWith = [&](const Eigen::Isometry3d& g, const RegistrationConfig& rc) {
       RegistrationResult r = registerCells(raw ? *raw_reference_ : *reference_,
-                                           raw ? raw_grid_ : grid_, *cells, intrinsics_, g,
-                                           reg_config);
+                                           raw ? raw_grid_ : grid_, *cells, intrinsics_, g, rc);
       // A view that leaves directions unfixed is registered against the keyframe's own cells:
       // along the directions it does fix, the model's voxel-sized planes blur the few edges
       // that fix them.
       if (!raw && raw_reference_ && r.degeneracy.degenerate > 0)
-        r = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, g, reg_config);
+        r = registerCells(*raw_reference_, raw_grid_, *cells, intrinsics_, g, rc);
       return r;
+    };
+    const auto registerFrom = [&](const Eigen::Isometry3d& g) {
+      return registerWith(g, reg_config);
     };
     reg = registerFrom(guess);
     // Held directions with the pairs collapsed: the guess, not the view, may be what is wrong
@@ -343,7 +347,8 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         st.retry_kept = true;
       }
     }
-    // The basin probe (CellOdometryConfig::basin_probe_below): a flag, the result stays.
+    // The basin probe (CellOdometryConfig::basin_probe_below): a flag; on a flagged frame, the
+    // deep returns weighted up (basin_deep_floor) may confirm another result.
     if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking &&
         reg.failure.empty() && reg.degeneracy.degenerate == 0 && reg.matches > 0 &&
         weakestInformation(reg.degeneracy) < config_.basin_probe_below) {
@@ -351,18 +356,44 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       if (probe_dir.norm() > 0.5) {  // mostly a translation
         probe_dir.normalize();
         st.basin_probed = true;
-        for (const double side : {1.0, -1.0}) {
-          if (st.probe_spread_m > config_.basin_probe_tolerance_m) break;  // one side says it
-          Eigen::Isometry3d from = reg.T_ref_cur;
-          from.translation() += side * config_.basin_probe_step_m * probe_dir;
-          const RegistrationResult probe = registerFrom(from);
-          // A probe that fails outright (too few pairs from there) says nothing either way.
-          if (!probe.failure.empty() || !probe.T_ref_cur.matrix().allFinite()) continue;
-          const double d =
-              (probe.T_ref_cur.translation() - reg.T_ref_cur.translation()).dot(probe_dir);
-          st.probe_spread_m = std::max(st.probe_spread_m, std::abs(d));
+        const double tolerance = config_.basin_probe_tolerance_m;
+        // How far the registrations from `r` moved the probe step's length either way along
+        // probe_dir end from it (stops at the first beyond the tolerance).
+        const auto spreadAround = [&](const RegistrationResult& r, const RegistrationConfig& rc) {
+          double spread = 0.0;
+          for (const double side : {1.0, -1.0}) {
+            if (spread > tolerance) break;  // one side says it
+            Eigen::Isometry3d from = r.T_ref_cur;
+            from.translation() += side * config_.basin_probe_step_m * probe_dir;
+            const RegistrationResult probe = registerWith(from, rc);
+            // A probe that fails outright (too few pairs from there) says nothing either way.
+            if (!probe.failure.empty() || !probe.T_ref_cur.matrix().allFinite()) continue;
+            spread = std::max(
+                spread,
+                std::abs((probe.T_ref_cur.translation() - r.T_ref_cur.translation()).dot(probe_dir)));
+          }
+          return spread;
+        };
+        st.probe_spread_m = spreadAround(reg, reg_config);
+        if (st.probe_spread_m > tolerance) {
+          st.unconfirmed_directions = 1;
+          if (config_.basin_deep_floor > reg_config.noise_weighting_min) {
+            RegistrationConfig deep_config = reg_config;
+            deep_config.noise_weighting_min = config_.basin_deep_floor;
+            RegistrationResult deep = registerWith(guess, deep_config);
+            st.basin_deep_retried = true;
+            if (deep.failure.empty() && deep.T_ref_cur.matrix().allFinite() &&
+                deep.degeneracy.degenerate == 0 && deep.matches > 0) {
+              const double spread = spreadAround(deep, deep_config);
+              if (spread <= tolerance) {
+                reg = std::move(deep);
+                st.probe_spread_m = spread;
+                st.unconfirmed_directions = 0;
+                st.basin_deep_kept = true;
+              }
+            }
+          }
         }
-        if (st.probe_spread_m > config_.basin_probe_tolerance_m) st.unconfirmed_directions = 1;
       }
     }
   }

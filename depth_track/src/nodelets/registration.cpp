@@ -218,6 +218,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     d.addf("icp error (mm)", "%.3f", s.error_rms_m * 1e3);
     d.add("held directions (degenerate view)", s.degenerate_directions);
     d.add("unconfirmed directions (basin probe)", s.unconfirmed_directions);
+    d.add("frames confirmed by the deep returns (basin_deep_floor)", deep_kept_frames_seen_);
     d.add("frames lost in a row", lost_frames_in_a_row_);
   }
 
@@ -278,6 +279,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     std::lock_guard<std::mutex> lock(last_mutex_);
     last_ = s;
     lost_frames_in_a_row_ = lost_frames_;
+    deep_kept_frames_seen_ = deep_kept_frames_;
   }
   void reject(const std_msgs::Header& h, const std::string& why) {
     ++rejected_;
@@ -660,6 +662,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     s.degenerate_directions = st.degenerate_directions;
     s.weakest_information = st.weakest_information;
     s.unconfirmed_directions = st.unconfirmed_directions;
+    deep_kept_frames_ += st.basin_deep_kept;
     s.ms_register = ms_register;
     const auto front = ctx_->times.get(h.stamp.toSec());
     s.ms_prefilter = front.first;
@@ -828,6 +831,8 @@ class RegistrationNodelet : public nodelet::Nodelet {
   std::optional<rig_msgs::TrackingStatus> last_;
   std::string method_name_;
   int lost_frames_in_a_row_ = 0;
+  long deep_kept_frames_seen_ = 0;  ///< deep_kept_frames_ as of last_ (under last_mutex_)
+  long deep_kept_frames_ = 0;       ///< frames FrameStatus::basin_deep_kept, since the start
   std::atomic<bool> cells_have_fm_{false};  ///< the last cells carry the FM terms (cell_search)
   bool fm_from_start_ = false;  ///< started as cell_search: pca_reduce computes the FM terms
   StageDiagnostics diag_;

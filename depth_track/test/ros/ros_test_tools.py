@@ -40,7 +40,8 @@ def replay_and_evaluate(out_dir, bag, motion_prior, offline_priors):
     """launch/replay.launch on `bag` at half rate (every frame reaches the graph in order even on
     a loaded machine; the D435 scenario bags are in millimetres) with `motion_prior`, saving its
     trajectory to out_dir/graph_trajectory.txt; then evaluate_bag on the same bag with each of
-    `offline_priors`. Returns (roslaunch's output, {prior: (completed process, its out dir)})."""
+    `offline_priors`: a prior's name, or (name, prior, [further evaluate_bag arguments]).
+    Returns (roslaunch's output, {name: (completed process, its out dir)})."""
     import os
     import subprocess
 
@@ -55,13 +56,14 @@ def replay_and_evaluate(out_dir, bag, motion_prior, offline_priors):
          "table_path:=" + os.path.join(out_dir, "table.txt")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
     runs = {}
-    for prior in offline_priors:
-        out = os.path.join(out_dir, prior)
+    for entry in offline_priors:
+        name, prior, extra = (entry, entry, []) if isinstance(entry, str) else entry
+        out = os.path.join(out_dir, name)
         run = subprocess.run(
             [tool("depth_track", "evaluate_bag"), bag, "--out-dir", out, "--quiet",
-             "--latency-scan", "0", "--motion-prior", prior],
+             "--latency-scan", "0", "--motion-prior", prior] + list(extra),
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-        runs[prior] = (run, out)
+        runs[name] = (run, out)
     return launch.stdout, runs
 
 

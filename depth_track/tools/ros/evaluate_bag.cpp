@@ -130,6 +130,7 @@ struct FrameRecord {
   bool retried = false;     ///< registered again from the previous pose (retry_pairs_below)
   bool retry_kept = false;  ///< ... and that registration kept
   bool unconfirmed = false;  ///< the basin probe found the weakest direction unfixed
+  bool deep_kept = false;    ///< ... until registered with the deep returns weighted up
   double ms_decode = 0, ms_prefilter = 0, ms_reduce = 0, ms_register = 0, ms_track = 0, ms_map = 0;
   double cpu_ms = 0;  ///< process CPU time of tracking + mapping (all threads)
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
@@ -164,7 +165,7 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
                           "errRy", "errRz", "errDx", "errDy", "errDz"})
       out << "," << p << "_" << c;
   out << ",icp_error_mm,cells,matches,fm_matches,iterations,keyframe,loop_attempted,loop_accepted,"
-         "held_directions,prior,retried,retry_kept,unconfirmed,ms_decode,ms_prefilter,ms_reduce,ms_register,"
+         "held_directions,prior,retried,retry_kept,unconfirmed,deep_kept,ms_decode,ms_prefilter,ms_reduce,ms_register,"
          "ms_track,ms_map,ms_frame,cpu_ms,failure\n";
   // Per reference: frame index -> its row of errors.
   std::vector<std::vector<const FrameError*>> by_frame(
@@ -200,10 +201,11 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
     }
     std::snprintf(
         buf, sizeof(buf),
-        ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
+        ",%.4f,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,",
         1000.0 * f.error_rms_m, f.cells, f.matches, f.fm_matches, f.iterations, f.keyframe ? 1 : 0,
         f.loop_attempted ? 1 : 0, f.loop_accepted ? 1 : 0, f.held_directions, f.prior ? 1 : 0,
-        f.retried ? 1 : 0, f.retry_kept ? 1 : 0, f.unconfirmed ? 1 : 0, f.ms_decode, f.ms_prefilter, f.ms_reduce,
+        f.retried ? 1 : 0, f.retry_kept ? 1 : 0, f.unconfirmed ? 1 : 0,
+        f.deep_kept ? 1 : 0, f.ms_decode, f.ms_prefilter, f.ms_reduce,
         f.ms_register, f.ms_track, f.ms_map, f.ms_track + f.ms_map, f.cpu_ms);
     out << buf << csvText(f.failure) << "\n";
   }
@@ -659,6 +661,7 @@ int main(int argc, char** argv) {
           f.prior = prior.has_value();
           f.retried = st.retried, f.retry_kept = st.retry_kept;
           f.unconfirmed = st.unconfirmed_directions > 0;
+          f.deep_kept = st.basin_deep_kept;
           f.ms_prefilter = st.ms_prefilter, f.ms_reduce = st.ms_reduce;
           f.ms_register = st.ms_register, f.ms_track = st.ms_total;
           f.T_W_C = st.T_W_C;
@@ -756,6 +759,11 @@ int main(int argc, char** argv) {
       report.line(fmt("flagged %zu tracked frames unconfirmed: the basin probe found a direction "
                       "the view does not fix, the pose kept (basin_probe_below; frames.csv: "
                       "unconfirmed)",
+                      n));
+    if (const std::size_t n = frames_with(&FrameRecord::deep_kept); n > 0)
+      report.line(fmt("confirmed %zu frames the basin probe found unfixed by registering them "
+                      "again with the deep returns weighted up (basin_deep_floor; frames.csv: "
+                      "deep_kept)",
                       n));
 
     const RunEvaluation run = evaluateRun(est, refs, eval_options);
