@@ -386,15 +386,14 @@ int main(int argc, char** argv) {
     if (retried > 0)
       std::printf("registered again from the previous pose: %d frames, %d kept (retry_pairs_below)\n",
                   retried, retry_kept);
-    if (probed > 0) {
+    if (probed > 0)
       std::printf("basin probe: %d frames probed, %d flagged unconfirmed (a direction the view "
                   "does not fix, the pose kept; basin_probe_below)\n",
                   probed, unconfirmed);
-      if (deep_retried > 0)
-        std::printf("basin probe: %d frames found unfixed registered again with the deep returns "
-                    "weighted up, %d of them confirmed and kept (basin_deep_floor)\n",
-                    deep_retried, deep_kept);
-    }
+    if (deep_retried > 0)
+      std::printf("deep returns: %d frames held or flagged registered again with the deep returns "
+                  "weighted up, %d of them confirmed and kept (basin_deep_floor)\n",
+                  deep_retried, deep_kept);
     if (imu) {
       std::printf("imu prior (simulated %s): %d of %zu frames guessed by it", imu_noise.c_str(),
                   imu_guesses, n);

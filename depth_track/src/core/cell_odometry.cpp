@@ -347,44 +347,68 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         st.retry_kept = true;
       }
     }
+    // The deep returns' say (CellOdometryConfig::basin_deep_floor): where the near surfaces
+    // leave the weakest direction unfixed (held by the degeneracy analysis, or flagged by the
+    // basin probe below), the frame is registered again with the depth-noise weighting's floor
+    // raised, and that result is kept when probes from either side of it confirm it.
+    const double tolerance = config_.basin_probe_tolerance_m;
+    const bool deep_on = state_ == TrackingState::kTracking &&
+                         config_.basin_deep_floor > reg_config.noise_weighting_min;
+    RegistrationConfig deep_config = reg_config;
+    deep_config.noise_weighting_min = config_.basin_deep_floor;
+    // How far registrations from `r` moved basin_probe_step_m either way along `dir` end from it
+    // (stops at the first beyond the tolerance).
+    const auto spreadAround = [&](const RegistrationResult& r, const RegistrationConfig& rc,
+                                  const Eigen::Vector3d& dir) {
+      double spread = 0.0;
+      for (const double side : {1.0, -1.0}) {
+        if (spread > tolerance) break;  // one side says it
+        Eigen::Isometry3d from = r.T_ref_cur;
+        from.translation() += side * config_.basin_probe_step_m * dir;
+        const RegistrationResult probe = registerWith(from, rc);
+        // A probe that fails outright (too few pairs from there) says nothing either way.
+        if (!probe.failure.empty() || !probe.T_ref_cur.matrix().allFinite()) continue;
+        spread = std::max(
+            spread, std::abs((probe.T_ref_cur.translation() - r.T_ref_cur.translation()).dot(dir)));
+      }
+      return spread;
+    };
+    const auto fixesAll = [](const RegistrationResult& r) {
+      return r.failure.empty() && r.T_ref_cur.matrix().allFinite() &&
+             r.degeneracy.degenerate == 0 && r.matches > 0;
+    };
+    // A view read as degenerate: its held directions follow the motion prior unless the deep
+    // returns fix every direction, confirmed along their result's own weakest direction (when
+    // that is mostly a translation).
+    bool deep_confirmed = false;
+    if (deep_on && reg.failure.empty() && reg.degeneracy.degenerate > 0) {
+      RegistrationResult deep = registerWith(guess, deep_config);
+      st.basin_deep_retried = true;
+      if (fixesAll(deep)) {
+        const Eigen::Vector3d dir = deep.degeneracy.weakest.tail<3>();
+        if (dir.norm() > 0.5 && spreadAround(deep, deep_config, dir.normalized()) <= tolerance) {
+          reg = std::move(deep);
+          st.basin_deep_kept = deep_confirmed = true;
+        }
+      }
+    }
     // The basin probe (CellOdometryConfig::basin_probe_below): a flag; on a flagged frame, the
-    // deep returns weighted up (basin_deep_floor) may confirm another result.
-    if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking &&
+    // deep returns may confirm another result (probed along the same direction).
+    if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking && !deep_confirmed &&
         reg.failure.empty() && reg.degeneracy.degenerate == 0 && reg.matches > 0 &&
         weakestInformation(reg.degeneracy) < config_.basin_probe_below) {
       probe_dir = reg.degeneracy.weakest.tail<3>();
       if (probe_dir.norm() > 0.5) {  // mostly a translation
         probe_dir.normalize();
         st.basin_probed = true;
-        const double tolerance = config_.basin_probe_tolerance_m;
-        // How far the registrations from `r` moved the probe step's length either way along
-        // probe_dir end from it (stops at the first beyond the tolerance).
-        const auto spreadAround = [&](const RegistrationResult& r, const RegistrationConfig& rc) {
-          double spread = 0.0;
-          for (const double side : {1.0, -1.0}) {
-            if (spread > tolerance) break;  // one side says it
-            Eigen::Isometry3d from = r.T_ref_cur;
-            from.translation() += side * config_.basin_probe_step_m * probe_dir;
-            const RegistrationResult probe = registerWith(from, rc);
-            // A probe that fails outright (too few pairs from there) says nothing either way.
-            if (!probe.failure.empty() || !probe.T_ref_cur.matrix().allFinite()) continue;
-            spread = std::max(
-                spread,
-                std::abs((probe.T_ref_cur.translation() - r.T_ref_cur.translation()).dot(probe_dir)));
-          }
-          return spread;
-        };
-        st.probe_spread_m = spreadAround(reg, reg_config);
+        st.probe_spread_m = spreadAround(reg, reg_config, probe_dir);
         if (st.probe_spread_m > tolerance) {
           st.unconfirmed_directions = 1;
-          if (config_.basin_deep_floor > reg_config.noise_weighting_min) {
-            RegistrationConfig deep_config = reg_config;
-            deep_config.noise_weighting_min = config_.basin_deep_floor;
+          if (deep_on) {
             RegistrationResult deep = registerWith(guess, deep_config);
             st.basin_deep_retried = true;
-            if (deep.failure.empty() && deep.T_ref_cur.matrix().allFinite() &&
-                deep.degeneracy.degenerate == 0 && deep.matches > 0) {
-              const double spread = spreadAround(deep, deep_config);
+            if (fixesAll(deep)) {
+              const double spread = spreadAround(deep, deep_config, probe_dir);
               if (spread <= tolerance) {
                 reg = std::move(deep);
                 st.probe_spread_m = spread;

@@ -182,9 +182,9 @@ std::vector<ParamSpec> makeParams() {
                   "a probe ending farther than this from the result flags the direction",
                   [](TrackerConfig& c) -> double& { return c.basin_probe_tolerance_m; }));
   p.push_back(num("basin_deep_floor", "",
-                  "a frame the basin probe flags is registered again with the depth-noise "
-                  "weighting's floor raised to this, and kept unflagged when its own probes "
-                  "confirm it (0 = off: the probe only flags)",
+                  "a frame that holds directions or that the basin probe flags is registered "
+                  "again with the depth-noise weighting's floor raised to this, and kept when "
+                  "probes either side confirm it (0 = off)",
                   [](TrackerConfig& c) -> double& { return c.basin_deep_floor; }));
   p.push_back(num("auto_noise", "",
                   "measure the depth noise on the first frame and set edge test, pooling and "

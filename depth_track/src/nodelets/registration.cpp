@@ -218,7 +218,7 @@ class RegistrationNodelet : public nodelet::Nodelet {
     d.addf("icp error (mm)", "%.3f", s.error_rms_m * 1e3);
     d.add("held directions (degenerate view)", s.degenerate_directions);
     d.add("unconfirmed directions (basin probe)", s.unconfirmed_directions);
-    d.add("frames confirmed by the deep returns (basin_deep_floor)", deep_kept_frames_seen_);
+    d.add("frames the deep returns fixed (basin_deep_floor)", deep_kept_frames_seen_);
     d.add("frames lost in a row", lost_frames_in_a_row_);
   }
 

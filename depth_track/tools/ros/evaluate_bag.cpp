@@ -761,9 +761,9 @@ int main(int argc, char** argv) {
                       "unconfirmed)",
                       n));
     if (const std::size_t n = frames_with(&FrameRecord::deep_kept); n > 0)
-      report.line(fmt("confirmed %zu frames the basin probe found unfixed by registering them "
-                      "again with the deep returns weighted up (basin_deep_floor; frames.csv: "
-                      "deep_kept)",
+      report.line(fmt("confirmed %zu frames the near surfaces left unfixed (held, or flagged by "
+                      "the basin probe) by registering them again with the deep returns weighted "
+                      "up (basin_deep_floor; frames.csv: deep_kept)",
                       n));
 
     const RunEvaluation run = evaluateRun(est, refs, eval_options);

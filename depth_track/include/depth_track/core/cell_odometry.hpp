@@ -93,16 +93,18 @@ struct CellOdometryConfig {
   double basin_probe_below = 20.0;
   double basin_probe_step_m = 0.02;       ///< see basin_probe_below, metres
   double basin_probe_tolerance_m = 0.005;  ///< see basin_probe_below, metres (< the step)
-  /// The deep returns' say on a frame the basin probe flags. The depth-noise weighting gives a
-  /// pair at least RegistrationConfig::noise_weighting_min of the nearest pair's weight, so that
-  /// the far, noisy returns cannot bias a view its near surfaces fix. When the probe finds that
-  /// the near surfaces do not fix the weakest direction after all (a corridor's start with stereo
-  /// noise: door frames and the far end lie deep), the frame is registered once more from the
-  /// same guess with that floor raised to this value and probed the same way; if that result
-  /// fixes every direction and both its probes end within basin_probe_tolerance_m, it is the
-  /// frame's and the frame is not flagged (FrameStatus::basin_deep_kept). Otherwise the first
-  /// result and the flag stay. A frame costs up to three registrations more. 0 (or a value not
-  /// above noise_weighting_min) = off: the probe only flags.
+  /// The deep returns' say where the near surfaces leave a direction unfixed. The depth-noise
+  /// weighting gives a pair at least RegistrationConfig::noise_weighting_min of the nearest
+  /// pair's weight, so that the far, noisy returns cannot bias a view its near surfaces fix. A
+  /// frame whose view is read as degenerate (directions held), or that the basin probe flags (a
+  /// corridor's start with stereo noise: door frames and the far end lie deep), is registered
+  /// once more from the same guess with that floor raised to this value. If that result fixes
+  /// every direction and probes from basin_probe_step_m either side of it (along its own weakest
+  /// direction for a held frame, along the probe's for a flagged one) end within
+  /// basin_probe_tolerance_m, it is the frame's: nothing is held and the frame is not flagged
+  /// (FrameStatus::basin_deep_kept). Otherwise the first result, its held directions and the
+  /// flag stay. A frame costs up to three registrations more. 0 (or a value not above
+  /// noise_weighting_min) = off: held directions follow the motion prior, the probe only flags.
   double basin_deep_floor = 0.25;
   RelocaliseConfig relocalise;
   /// The registration model: tracked frames' cells averaged per voxel, and each new keyframe's
@@ -172,9 +174,10 @@ struct FrameStatus {
   bool basin_probed = false;
   int unconfirmed_directions = 0;
   double probe_spread_m = 0.0;
-  /// A flagged frame registered again with the deep returns weighted up
+  /// A held or flagged frame registered again with the deep returns weighted up
   /// (CellOdometryConfig::basin_deep_floor); kept: that result is the frame's, confirmed by its
-  /// own probes (probe_spread_m is then theirs, and the frame is not flagged).
+  /// own probes (nothing held, the frame not flagged; for a flagged frame probe_spread_m is then
+  /// the spread of those probes).
   bool basin_deep_retried = false, basin_deep_kept = false;
   /// With new_keyframe and the model on: how the model refined the keyframe's cells.
   ModelRefineStats model;
