@@ -258,7 +258,7 @@ int main(int argc, char** argv) {
     long keyframe_cells = 0, refined_cells = 0;  // registration model: keyframes' cells, refined
     int retried = 0, retry_kept = 0;             // registered again from the previous pose
     int probed = 0, unconfirmed = 0;             // the basin probe
-    int deep_retried = 0, deep_kept = 0;         // flagged frames registered with deep returns up
+    int deep_retried = 0, deep_kept = 0;         // held or flagged frames, deep returns weighted up
     std::map<std::string, int> failures;
     long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
     for (std::size_t i = 0; i < n; ++i) {
@@ -352,8 +352,8 @@ int main(int argc, char** argv) {
                      st.stamp_s, st.tracked, st.cells, st.candidates, st.matches, st.fm_matches,
                      st.duplicates_broken, st.iterations, st.error_rms_m, st.degenerate_directions,
                      st.weakest_information, st.unconfirmed_directions, st.probe_spread_m,
-                     st.basin_deep_kept ? 1 : 0, st.new_keyframe, st.ms_prefilter, st.ms_reduce, st.ms_register, st.ms_total,
-                     st.failure.c_str());
+                     st.basin_deep_kept ? 1 : 0, st.new_keyframe, st.ms_prefilter, st.ms_reduce,
+                     st.ms_register, st.ms_total, st.failure.c_str());
     }
     if (status) std::fclose(status);
     const std::string what =

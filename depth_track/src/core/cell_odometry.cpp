@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 
@@ -352,10 +353,6 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
     // basin probe below), the frame is registered again with the depth-noise weighting's floor
     // raised, and that result is kept when probes from either side of it confirm it.
     const double tolerance = config_.basin_probe_tolerance_m;
-    const bool deep_on = state_ == TrackingState::kTracking &&
-                         config_.basin_deep_floor > reg_config.noise_weighting_min;
-    RegistrationConfig deep_config = reg_config;
-    deep_config.noise_weighting_min = config_.basin_deep_floor;
     // How far registrations from `r` moved basin_probe_step_m either way along `dir` end from it
     // (stops at the first beyond the tolerance).
     const auto spreadAround = [&](const RegistrationResult& r, const RegistrationConfig& rc,
@@ -373,30 +370,51 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
       }
       return spread;
     };
-    const auto fixesAll = [](const RegistrationResult& r) {
-      return r.failure.empty() && r.T_ref_cur.matrix().allFinite() &&
-             r.degeneracy.degenerate == 0 && r.matches > 0;
+    // The raised floor changes a pair's weight only where its reference cell's own factor lies
+    // below it; with no such cell (nothing deep in view, or the weighting off) the registration
+    // would be the first one again, so it is not run.
+    const auto floorReachesAPair = [&] {
+      float z_max = 0.0f;
+      for (const CellCloud* ref : {reference_.get(), raw_reference_.get()})
+        if (ref)
+          for (const Cell& c : ref->cells) z_max = std::max(z_max, c.mean_C.z());
+      return noiseWeightingFactor(reg_config, z_max) < config_.basin_deep_floor;
     };
-    // A view read as degenerate: its held directions follow the motion prior unless the deep
-    // returns fix every direction, confirmed along their result's own weakest direction (when
-    // that is mostly a translation).
-    bool deep_confirmed = false;
-    if (deep_on && reg.failure.empty() && reg.degeneracy.degenerate > 0) {
+    const bool deep_on = state_ == TrackingState::kTracking &&
+                         config_.basin_deep_floor > reg_config.noise_weighting_min;
+    // Registers the frame again from the guess with the raised floor and keeps that result
+    // (returning its probes' spread) when it fixes every direction and the probes along `along`
+    // confirm it; with no `along`, along its own weakest direction when that is mostly a
+    // translation.
+    const auto keepDeep = [&](const Eigen::Vector3d* along) -> std::optional<double> {
+      if (!floorReachesAPair()) return std::nullopt;
+      RegistrationConfig deep_config = reg_config;
+      deep_config.noise_weighting_min = config_.basin_deep_floor;
       RegistrationResult deep = registerWith(guess, deep_config);
       st.basin_deep_retried = true;
-      if (fixesAll(deep)) {
-        const Eigen::Vector3d dir = deep.degeneracy.weakest.tail<3>();
-        if (dir.norm() > 0.5 && spreadAround(deep, deep_config, dir.normalized()) <= tolerance) {
-          reg = std::move(deep);
-          st.basin_deep_kept = deep_confirmed = true;
-        }
+      if (!deep.failure.empty() || !deep.T_ref_cur.matrix().allFinite() ||
+          deep.degeneracy.degenerate > 0 || deep.matches == 0)
+        return std::nullopt;
+      Eigen::Vector3d dir = along ? *along : Eigen::Vector3d(deep.degeneracy.weakest.tail<3>());
+      if (!along) {
+        if (dir.norm() <= 0.5) return std::nullopt;
+        dir.normalize();
       }
-    }
+      const double spread = spreadAround(deep, deep_config, dir);
+      if (spread > tolerance) return std::nullopt;
+      reg = std::move(deep);
+      st.basin_deep_kept = true;
+      return spread;
+    };
+    // A view read as degenerate: its held directions follow the motion prior unless the deep
+    // returns fix every direction.
+    if (deep_on && reg.failure.empty() && reg.degeneracy.degenerate > 0) keepDeep(nullptr);
     // The basin probe (CellOdometryConfig::basin_probe_below): a flag; on a flagged frame, the
-    // deep returns may confirm another result (probed along the same direction).
-    if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking && !deep_confirmed &&
-        reg.failure.empty() && reg.degeneracy.degenerate == 0 && reg.matches > 0 &&
-        weakestInformation(reg.degeneracy) < config_.basin_probe_below) {
+    // deep returns may confirm another result (probed along the same direction). A frame the
+    // deep returns fixed above was confirmed by its own probes.
+    if (config_.basin_probe_below > 0.0 && state_ == TrackingState::kTracking &&
+        !st.basin_deep_kept && reg.failure.empty() && reg.degeneracy.degenerate == 0 &&
+        reg.matches > 0 && weakestInformation(reg.degeneracy) < config_.basin_probe_below) {
       probe_dir = reg.degeneracy.weakest.tail<3>();
       if (probe_dir.norm() > 0.5) {  // mostly a translation
         probe_dir.normalize();
@@ -405,16 +423,9 @@ FrameStatus CellOdometry::track(std::shared_ptr<const CellCloud> cells,
         if (st.probe_spread_m > tolerance) {
           st.unconfirmed_directions = 1;
           if (deep_on) {
-            RegistrationResult deep = registerWith(guess, deep_config);
-            st.basin_deep_retried = true;
-            if (fixesAll(deep)) {
-              const double spread = spreadAround(deep, deep_config, probe_dir);
-              if (spread <= tolerance) {
-                reg = std::move(deep);
-                st.probe_spread_m = spread;
-                st.unconfirmed_directions = 0;
-                st.basin_deep_kept = true;
-              }
+            if (const auto spread = keepDeep(&probe_dir)) {
+              st.probe_spread_m = *spread;
+              st.unconfirmed_directions = 0;
             }
           }
         }

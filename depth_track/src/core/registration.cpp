@@ -296,20 +296,30 @@ struct NoiseWeighting {
         min_factor(config.noise_weighting_min) {
     on = config.noise_weighting && z_ref > 0.0 && sigma_ref > 0.0;
   }
-  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z, at least
-  // min_factor: 1 when off or not deeper than z_ref. Its Huber threshold grows by
-  // factor^-1/2 (sigma(z) / sigma(z_ref) above the floor).
-  double factor(double z) const {
+  // The noise factor (sigma(z_ref) / sigma(z))^2 of a pair at reference depth z: 1 when off or
+  // not deeper than z_ref (noiseWeightingFactor).
+  double unfloored(double z) const {
     if (!on || !(z > z_ref)) return 1.0;
     const double ratio = noise.sigmaAt(z) / sigma_ref;  // >= 1: sigma grows with depth
-    return std::max(min_factor, 1.0 / (ratio * ratio));
+    return 1.0 / (ratio * ratio);
   }
+  // The same, at least min_factor. Its Huber threshold grows by factor^-1/2 (sigma(z) /
+  // sigma(z_ref) above the floor).
+  double factor(double z) const { return std::max(min_factor, unfloored(z)); }
   // Huber weight of residual e whose pair has noise factor f (above), times f.
   double weight(double e, double f, const RegistrationConfig& config) const {
     if (f == 1.0) return huberWeight(e, config);
     return huberWeight(e, config.huber_delta_m / std::sqrt(f), config.robust) * f;
   }
 };
+
+}  // namespace
+
+double noiseWeightingFactor(const RegistrationConfig& config, double z) {
+  return NoiseWeighting(config).unfloored(z);
+}
+
+namespace {
 
 // One point-to-plane Gauss-Newton step: minimises sum w (n_r . (p - q_r))^2 over the increment
 // [omega; v] with p' = p + omega x p + v, in the directions the pairs constrain (the analysis of

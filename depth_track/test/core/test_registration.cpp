@@ -194,6 +194,22 @@ TEST(Registration, NoiseWeightingWeighsDeepPairsDown) {
 // 1 (DegeneracyAnalysis::residual_var_m2), not the plain mean square the deep pairs dominate:
 // read against the plain one, a view the near pairs fix well loses information it has and may be
 // held at the motion prior. The motion is recovered and no direction is held.
+// The factor a pair's weight starts from before the floor (CellOdometry reads it to tell whether
+// a raised floor would change any weight): the inverse-variance ratio beyond the reference depth,
+// 1 up to it and when the weighting is off, and not floored.
+TEST(Registration, NoiseWeightingFactorIsTheUnflooredInverseVarianceRatio) {
+  RegistrationConfig c;
+  c.noise = DepthNoiseModel{0.0, 0.0, 0.005};  // sigma = 5 mm z^2
+  c.noise_ref_depth_m = 1.0;
+  c.noise_weighting = true;
+  EXPECT_DOUBLE_EQ(noiseWeightingFactor(c, 0.5), 1.0);
+  EXPECT_DOUBLE_EQ(noiseWeightingFactor(c, 1.0), 1.0);
+  EXPECT_NEAR(noiseWeightingFactor(c, 2.0), 1.0 / 16.0, 1e-12);   // sigma four times z_ref's
+  EXPECT_NEAR(noiseWeightingFactor(c, 4.0), 1.0 / 256.0, 1e-12);  // below the 1/32 floor
+  c.noise_weighting = false;
+  EXPECT_DOUBLE_EQ(noiseWeightingFactor(c, 4.0), 1.0);
+}
+
 TEST(Registration, NoiseWeightingReadsInformationAgainstUnitWeightVariance) {
   const auto K = l515();
   const Eigen::Isometry3d truth = motion(1.0, -2.0, 0.5, 0.03, -0.01, 0.02);

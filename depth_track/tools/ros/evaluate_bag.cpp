@@ -130,7 +130,7 @@ struct FrameRecord {
   bool retried = false;     ///< registered again from the previous pose (retry_pairs_below)
   bool retry_kept = false;  ///< ... and that registration kept
   bool unconfirmed = false;  ///< the basin probe found the weakest direction unfixed
-  bool deep_kept = false;    ///< ... until registered with the deep returns weighted up
+  bool deep_kept = false;    ///< held or flagged, and fixed by the deep returns (basin_deep_floor)
   double ms_decode = 0, ms_prefilter = 0, ms_reduce = 0, ms_register = 0, ms_track = 0, ms_map = 0;
   double cpu_ms = 0;  ///< process CPU time of tracking + mapping (all threads)
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();

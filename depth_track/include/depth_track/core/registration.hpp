@@ -158,6 +158,12 @@ Eigen::Isometry3d alignPointToPoint(const std::vector<Eigen::Vector3d>& p,
                                     const std::vector<Eigen::Vector3d>& q,
                                     const std::vector<double>& w = {});
 
+/// The depth-noise weighting's factor (sigma(z_ref) / sigma(z))^2 of a pair whose reference cell
+/// lies at depth z, before the floor RegistrationConfig::noise_weighting_min: 1 when the
+/// weighting is off or z is not deeper than noise_ref_depth_m. A registration weighs the pair
+/// max(noise_weighting_min, this).
+double noiseWeightingFactor(const RegistrationConfig& config, double z);
+
 /// Pairs reference cells with current cells one-to-one, given T_ref_cur. Thread-safe.
 MatchResult matchCells(const CellCloud& reference, const CellCloud& current,
                        const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_ref_cur,
