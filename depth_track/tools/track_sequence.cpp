@@ -261,6 +261,8 @@ int main(int argc, char** argv) {
     int deep_retried = 0, deep_kept = 0;         // held or flagged frames, deep returns weighted up
     std::map<std::string, int> failures;
     long long snapped_returns = 0, fused_returns = 0;  // returns snapped / within the fuse depth
+    // Returns left out of the hits: the near side of a depth edge; cells too small to place.
+    long long edge_returns = 0, unplaced_returns = 0;
     for (std::size_t i = 0; i < n; ++i) {
       FrameStatus st;
       try {
@@ -272,6 +274,8 @@ int main(int argc, char** argv) {
           const StampedPose& known = fuse_traj[static_cast<std::size_t>(fuse_pose_of[i])];
           const FuseStats fs = mapper->fuse(depth, known.T_W_C);
           snapped_returns += fs.snapped_pixels;
+          edge_returns += fs.edge_dropped;
+          unplaced_returns += fs.unplaced_dropped;
           fused_returns += fs.returnsWithinFuseDepth();
           st.stamp_s = source->stamp(i);
           st.tracked = true;
@@ -303,6 +307,8 @@ int main(int argc, char** argv) {
             // test_map_stages).
             const MapperFrame mf = mapper->process(depth, st.T_W_C);
             snapped_returns += mf.fuse.snapped_pixels;
+            edge_returns += mf.fuse.edge_dropped;
+            unplaced_returns += mf.fuse.unplaced_dropped;
             fused_returns += mf.fuse.returnsWithinFuseDepth();
             if (mf.loop_attempted && mf.loop.accepted) {
               tracker.correctPose(mf.T_W_C);
@@ -440,6 +446,16 @@ int main(int argc, char** argv) {
                     "plane (%lld of %lld)\n",
                     fused_returns > 0 ? 100.0 * snapped_returns / fused_returns : 0.0,
                     snapped_returns, fused_returns);
+      if (vm.config().edge_margin_px > 0 || vm.config().drop_unplaced) {
+        const auto share = [&](long long k) {
+          return fused_returns > 0 ? 100.0 * static_cast<double>(k) / fused_returns : 0.0;
+        };
+        std::printf("map left out of the hits: %.1f %% of the returns within the fuse depth on "
+                    "the near side of a depth edge, %.1f %% in cells too small to place "
+                    "(%lld, %lld of %lld)\n",
+                    share(edge_returns), share(unplaced_returns), edge_returns, unplaced_returns,
+                    fused_returns);
+      }
       if (map_quality) {
         const double tol = oneVoxelTolerance(vm.config().voxel_size_m);
         const sim::Scene& scene = rendered->run().scene;

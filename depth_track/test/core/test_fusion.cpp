@@ -644,3 +644,132 @@ TEST(Fusion, MaxFuseDepthLeavesDeeperReturnsOut) {
     EXPECT_NE(std::string(e.what()).find("max_fuse_depth_m"), std::string::npos) << e.what();
   }
 }
+
+TEST(Fusion, EdgeMarginLeavesTheBledNearSideOutAndKeepsBothSurfaces) {
+  // A wall 2 m ahead with a box face 1 m ahead in a 100 x 80 px window; like a stereo camera's
+  // edge fattening, the 4 px ring around the window reports the box's depth although it sees
+  // the wall. Those returns lie in free space beside the box (up to 7.6 mm from its face).
+  auto inBox = [](int u, int v, int grow) {
+    return u >= 260 - grow && u < 360 + grow && v >= 200 - grow && v < 280 + grow;
+  };
+  DepthImage d(kK.width, kK.height);
+  int ring = 0;
+  for (int v = 0; v < d.height; ++v)
+    for (int u = 0; u < d.width; ++u) {
+      d.at(u, v) = inBox(u, v, 4) ? 1.0f : 2.0f;
+      ring += inBox(u, v, 4) && !inBox(u, v, 0);
+    }
+  ASSERT_EQ(ring, 108 * 88 - 100 * 80);
+  struct Counts {
+    int face = 0, wall = 0, beside = 0;
+    FuseStats st;
+  };
+  auto fuse = [&](int margin) {
+    MapConfig cfg = unboundedConfig(0.005, UpdateModel::kProbabilistic);
+    cfg.max_fuse_noise_voxels = 0.0;
+    cfg.snap_cell_px = 0;  // no noise to measure; the returns as given
+    cfg.edge_margin_px = margin;
+    VoxelMap map(cfg);
+    Counts c;
+    c.st = map.fuse(d, kK, Eigen::Isometry3d::Identity());
+    // The voxels the box face's own pixels fall in.
+    std::set<std::tuple<int, int, int>> face;
+    for (int v = 200; v < 280; ++v)
+      for (int u = 260; u < 360; ++u) {
+        const VoxelKey k = map.keyOf(Eigen::Vector3d((u - kK.cx) / kK.fx, (v - kK.cy) / kK.fy, 1.0));
+        face.emplace(k.x(), k.y(), k.z());
+      }
+    map.forEachOccupied([&](const VoxelKey& k) {
+      const Eigen::Vector3d p = map.centerOf(k);
+      if (std::abs(p.z() - 2.0) < 0.01)
+        ++c.wall;
+      else if (face.count({k.x(), k.y(), k.z()}))
+        ++c.face;
+      else
+        ++c.beside;
+    });
+    EXPECT_EQ(c.face, static_cast<int>(face.size())) << "edge margin " << margin;
+    return c;
+  };
+  const Counts off = fuse(0), on = fuse(4);
+  std::printf("edge margin 0: %d face, %d wall, %d beside the box; margin 4: %d, %d, %d (%d "
+              "returns left out)\n",
+              off.face, off.wall, off.beside, on.face, on.wall, on.beside, on.st.edge_dropped);
+  EXPECT_GT(off.beside, 50);  // the ring marks voxels where nothing is
+  EXPECT_EQ(on.beside, 0);
+  EXPECT_EQ(on.st.edge_dropped, ring);  // the ring, and none of the box's own returns
+  EXPECT_EQ(on.wall, off.wall);         // the far side of the edge is kept
+  // The returns left out are still returns of the frame, and their rays still carve.
+  EXPECT_EQ(on.st.valid_pixels, off.st.valid_pixels);
+  EXPECT_EQ(on.st.carve_rays, off.st.carve_rays);
+  // A margin narrower than the ring leaves its inner part: returns with no deeper one in reach.
+  EXPECT_LT(fuse(2).st.edge_dropped, ring);
+
+  // Noise is not an edge: a tilted plane with sigma(z) up to 30 mm loses no return.
+  MapConfig cfg = unboundedConfig(0.005, UpdateModel::kProbabilistic);
+  ASSERT_EQ(cfg.edge_margin_px, 2);  // the default
+  VoxelMap plane(cfg);
+  for (unsigned f = 0; f < 3; ++f)
+    EXPECT_EQ(plane.fuse(noisyTiltedPlane(0.004, 20 + f), kK, Eigen::Isometry3d::Identity())
+                  .edge_dropped,
+              0);
+  for (int bad : {-1, 17}) {
+    MapConfig b = cfg;
+    b.edge_margin_px = bad;
+    EXPECT_THROW(VoxelMap m(b), std::invalid_argument) << "edge_margin_px " << bad;
+  }
+  for (double bad : {0.0, -0.1, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+    MapConfig b = cfg;
+    b.edge_jump = bad;
+    try {
+      VoxelMap m(b);
+      ADD_FAILURE() << "edge_jump " << bad << " was accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("edge_jump"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(Fusion, CellsTooSmallToPlaceTheirPlaneAreLeftOutOfTheHits) {
+  // The noisy tilted plane (sigma(z) = 4 mm/m^2 z^2) with only every third pixel of every third
+  // row returning: a 16 px cell holds about 28 returns, too few to place its plane to half a
+  // 5 mm voxel where sigma(z) exceeds 13 mm (4 (sigma / voxel)^2 > 28, beyond about 1.8 m).
+  auto sparse = [](unsigned seed) {
+    DepthImage d = noisyTiltedPlane(0.004, seed);
+    for (int v = 0; v < d.height; ++v)
+      for (int u = 0; u < d.width; ++u)
+        if (u % 3 != 0 || v % 3 != 0) d.at(u, v) = 0.0f;
+    return d;
+  };
+  const Eigen::Vector3d n = Eigen::Vector3d(0, 1, 1).normalized();
+  const double c_plane = 1.5 / std::sqrt(2.0);
+  struct Result {
+    int occupied = 0, off = 0;
+    FuseStats last;
+  };
+  auto fuse = [&](bool drop) {
+    MapConfig cfg = unboundedConfig(0.005, UpdateModel::kProbabilistic);
+    cfg.max_fuse_noise_voxels = 0.0;
+    cfg.drop_unplaced = drop;
+    VoxelMap map(cfg);
+    map.fuse(noisyTiltedPlane(0.004, 30), kK, Eigen::Isometry3d::Identity());  // the noise
+    Result r;
+    for (unsigned f = 0; f < 4; ++f) r.last = map.fuse(sparse(31 + f), kK, Eigen::Isometry3d::Identity());
+    map.forEachOccupied([&](const VoxelKey& k) {
+      ++r.occupied;
+      r.off += std::abs(n.dot(map.centerOf(k)) - c_plane) > 0.0075;  // beyond 1.5 voxels
+    });
+    return r;
+  };
+  const Result kept = fuse(false), dropped = fuse(true);
+  std::printf("sparse noisy plane: drop_unplaced false: %d occupied, %d off the plane; true: %d, "
+              "%d (%d of %d returns of the last frame left out)\n",
+              kept.occupied, kept.off, dropped.occupied, dropped.off,
+              dropped.last.unplaced_dropped, dropped.last.valid_pixels);
+  EXPECT_EQ(kept.last.unplaced_dropped, 0);
+  EXPECT_GT(dropped.last.unplaced_dropped, dropped.last.valid_pixels / 4);
+  EXPECT_LT(dropped.last.unplaced_dropped, dropped.last.valid_pixels);  // near cells are placed
+  EXPECT_EQ(dropped.last.valid_pixels, kept.last.valid_pixels);
+  EXPECT_LT(dropped.off, kept.off / 2);
+  ASSERT_TRUE(MapConfig().drop_unplaced);  // the default
+}

@@ -200,6 +200,7 @@ __attribute__((noinline)) void fuseHits(VoxelMap::Impl& m, const DepthImage& dep
 // Misses all change a voxel alike, so the order in which rays claim voxels does not matter: a
 // row of rays is walked first (fetching the voxels' lines), then its misses are applied.
 __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
+                                     const DepthImage* dropped_from, const std::uint8_t* dropped,
                                      const FrameRays& fr, const Eigen::Isometry3d& T_W_C,
                                      int stride, double margin_m, double z_max, FuseStats& st) {
   const int w = depth.width, h = depth.height;
@@ -218,8 +219,10 @@ __attribute__((noinline)) void carve(VoxelMap::Impl& m, const DepthImage& depth,
   };
   for (int v = ov; v < h; v += stride) {
     const float* row = depth.data.data() + static_cast<std::size_t>(v) * w;
+    const std::size_t r0 = static_cast<std::size_t>(v) * w;
     for (int u = ou; u < w; u += stride) {
-      const double z = row[u];
+      // A return left out of the hits (MapFuser::fuse) still carves.
+      const double z = dropped && dropped[r0 + u] ? dropped_from->data[r0 + u] : row[u];
       // As in the hit pass, only a finite positive depth is a return (a ray to +inf never ends).
       if (!(z > 0.0) || !(z < std::numeric_limits<double>::infinity()) || z > z_max) continue;
       // With d_C = (x, y, 1) the ray parameter is the depth along the optical axis.
@@ -335,9 +338,12 @@ struct Moments {
 // 1/z = (n_x x + n_y y + n_z) / d, so inverse depth w = 1/z is fitted linearly in the pixel ray
 // (x, y); a return's distance from the plane in depth is z^2 (w - w_fit) to first order, judged
 // against sigma(z) at the cell's mean depth. Returns only up to z_max take part (deeper ones are
-// not fused anyway). Returns the number of returns snapped.
+// not fused anyway). With `dropped` (MapConfig::drop_unplaced), the returns of a cell with too
+// few returns to place its plane to half a voxel are zeroed in `out`, marked there and counted in
+// `unplaced` (finer cells are not tried: they hold fewer still). Returns the number snapped.
 int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int cell,
-                     double voxel_m, const DepthNoiseModel& noise, float z_max, DepthImage& out) {
+                     double voxel_m, const DepthNoiseModel& noise, float z_max, DepthImage& out,
+                     std::uint8_t* dropped, int& unplaced) {
   constexpr double kInlierSigmas = 3.0;  // a return within this of the plane is on it
   constexpr double kPlanarRms = 1.5;     // a cell is planar when its inliers' RMS is within this
   const int w = in.width, h = in.height;
@@ -406,10 +412,26 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     }
     const Moments all = lm.total();
     const double n = all.n;
-    if (n < min_valid) return false;
+    if (n == 0) return false;
     const double sigma =
         noise.sigmaAt((double{zsum[0]} + zsum[1] + zsum[2] + zsum[3]) / n);
-    if (!(sigma > 0.0)) return false;
+    if (dropped && sigma > 0.0 && n < 4.0 * (sigma / voxel_m) * (sigma / voxel_m)) {
+      // Too few returns to place the cell's plane to half a voxel: fused as measured or at a
+      // plane this uncertain they would mark voxels off the surface. Left out of the hits.
+      for (int v = v0; v < v1; ++v) {
+        const std::size_t r = static_cast<std::size_t>(v) * w;
+        for (int u = u0; u < u1; ++u) {
+          const float zr = in.data[r + u];
+          if (zr > 0.0f && zr < std::numeric_limits<float>::infinity() && zr <= z_max) {
+            out.data[r + u] = 0.0f;
+            dropped[r + u] = 1;
+            ++unplaced;
+          }
+        }
+      }
+      return true;
+    }
+    if (n < min_valid || !(sigma > 0.0)) return false;
     const V4f gate = simd4::splat(static_cast<float>(kInlierSigmas * sigma)), neg_gate = -gate;
     // Fit w = a + b x + c y, judge every return against the plane, and fit again without the
     // returns more than kInlierSigmas off it (another surface in the cell, or a stray return):
@@ -518,6 +540,72 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
   return snapped;
 }
 
+// MapConfig::edge_margin_px: zeroes in `out` (a copy of `in`) the returns on the near side of a
+// depth edge: those with a return within `margin` pixels (chessboard) that lies deeper by more
+// than jump z (and, once the noise is known, by more than kEdgeSigmas sigma(z), so that noise
+// alone never reads as an edge). Stereo edge fattening and the spot's lateral spread put such
+// returns off the foreground's true outline, in free space beside it; the far side's returns are
+// kept (a return taken from the background lies on it). `mask` (w x h, zeroed by the caller) gets
+// 1 where a return was dropped. Returns the number dropped. Separable maximum over the window: rows, then columns.
+int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const DepthNoiseModel& noise,
+                        float z_max, std::vector<float>& row_max, DepthImage& out,
+                        std::uint8_t* mask) {
+  constexpr double kEdgeSigmas = 6.0;
+  const int w = in.width, h = in.height;
+  out.width = w;
+  out.height = h;
+  out.data = in.data;
+  row_max.resize(static_cast<std::size_t>(w) * h);
+  std::vector<float> padded(static_cast<std::size_t>(w + 2 * margin), 0.0f);
+  // Rows: the deepest return within +-margin columns (no return = 0; NaN and inf are none).
+  for (int v = 0; v < h; ++v) {
+    const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+    for (int u = 0; u < w; ++u) {
+      const float z = row[u];
+      padded[u + margin] = z > 0.0f && z < std::numeric_limits<float>::infinity() ? z : 0.0f;
+    }
+    float* dst = row_max.data() + static_cast<std::size_t>(v) * w;
+    std::copy(padded.begin(), padded.begin() + w, dst);
+    for (int k = 1; k <= 2 * margin; ++k) {
+      const float* src = padded.data() + k;
+      for (int u = 0; u < w; ++u) dst[u] = std::max(dst[u], src[u]);
+    }
+  }
+  // Columns: the deepest of the rows' maxima within +-margin rows, then the test.
+  std::vector<float> win(w);
+  const float jump_f = static_cast<float>(jump);
+  const bool with_noise = noise.known();
+  const float q0 = static_cast<float>(kEdgeSigmas * noise.const_m),
+              q1 = static_cast<float>(kEdgeSigmas * noise.linear),
+              q2 = static_cast<float>(kEdgeSigmas * noise.quad_per_m);
+  int dropped = 0;
+  for (int v = 0; v < h; ++v) {
+    const int v0 = std::max(0, v - margin), v1 = std::min(h - 1, v + margin);
+    std::copy(row_max.begin() + static_cast<std::size_t>(v0) * w,
+              row_max.begin() + static_cast<std::size_t>(v0 + 1) * w, win.begin());
+    for (int vv = v0 + 1; vv <= v1; ++vv) {
+      const float* src = row_max.data() + static_cast<std::size_t>(vv) * w;
+      for (int u = 0; u < w; ++u) win[u] = std::max(win[u], src[u]);
+    }
+    const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
+    float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
+    std::uint8_t* mrow = mask + static_cast<std::size_t>(v) * w;
+    for (int u = 0; u < w; ++u) {
+      const float z = row[u];
+      // Not a return, or deeper than the fuse depth (not fused anyway).
+      if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity()) || z > z_max) continue;
+      float thr = jump_f * z;
+      if (with_noise) thr = std::max(thr, q0 + z * (q1 + z * q2));
+      if (win[u] - z > thr) {
+        dst[u] = 0.0f;
+        mrow[u] = 1;
+        ++dropped;
+      }
+    }
+  }
+  return dropped;
+}
+
 }  // namespace
 
 MapFuser::MapFuser(VoxelMap& map, const PinholeIntrinsics& intrinsics)
@@ -580,12 +668,26 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
                                 noise_depth);
   st.fuse_depth_limit_m = std::isfinite(z_max) ? z_max : 0.0;
   const DepthNoiseModel& noise_model = settles ? noise->model : m.noise_model;
+  // Returns left out of the hits (the near side of a depth edge, cells whose plane cannot be
+  // placed) are zeroed in the fused image and marked in dropped_; their rays still carve.
+  const bool edges = config.edge_margin_px > 0;
   const bool snap = config.snap_cell_px > 0 && noise_model.known();
+  const bool unplaced = snap && config.drop_unplaced;
+  const bool drops = edges || unplaced;
+  if (drops) dropped_.assign(depth.data.size(), 0);
+  if (edges)
+    st.edge_dropped = dropNearSideOfEdges(depth, config.edge_margin_px, config.edge_jump,
+                                          noise_model, static_cast<float>(z_max), edge_scratch_,
+                                          edged_, dropped_.data());
+  const DepthImage& kept = edges ? edged_ : depth;
   if (snap)
-    st.snapped_pixels = snapToCellPlanes(depth, ray_x_.data(), ray_y_.data(), config.snap_cell_px,
-                                         config.voxel_size_m, noise_model, static_cast<float>(z_max), snapped_);
-  const DepthImage& fused = snap ? snapped_ : depth;
+    st.snapped_pixels = snapToCellPlanes(kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px,
+                                         config.voxel_size_m, noise_model, static_cast<float>(z_max),
+                                         snapped_, unplaced ? dropped_.data() : nullptr,
+                                         st.unplaced_dropped);
+  const DepthImage& fused = snap ? snapped_ : kept;
   fuseHits(m, fused, fr, static_cast<float>(z_max), st);
+  st.valid_pixels += st.edge_dropped + st.unplaced_dropped;  // still returns of the frame
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
@@ -601,7 +703,8 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
     if (!noise->summary.empty()) m.noise_summary = noise->summary;
   }
   if (config.model == UpdateModel::kProbabilistic)
-    carve(m, fused, fr, T_W_C, config.carve_stride_px, config.carve_margin_m, z_max, st);
+    carve(m, fused, drops ? &depth : nullptr, drops ? dropped_.data() : nullptr, fr, T_W_C,
+          config.carve_stride_px, config.carve_margin_m, z_max, st);
   ++map_.frames_fused_;
   st.ms = msSince(t_start);
   timing_.add(st.ms);

@@ -54,6 +54,17 @@ std::vector<MapperParamSpec> makeParams() {
                   "fuse each planar cell's returns at its fitted plane, cells this many pixels "
                   "square; 0 = fuse returns as measured",
                   [](MapperConfig& c) -> int& { return c.map.snap_cell_px; }));
+  p.push_back(num("edge_margin", "px",
+                  "leave out of the hits the returns with a return this many pixels away that "
+                  "lies deeper by edge_jump (the near side of a depth edge); 0 = off",
+                  [](MapperConfig& c) -> int& { return c.map.edge_margin_px; }));
+  p.push_back(num("edge_jump", "",
+                  "edge_margin: the depth step, as a share of the depth, that makes a depth edge",
+                  [](MapperConfig& c) -> double& { return c.map.edge_jump; }));
+  p.push_back(num("drop_unplaced", "",
+                  "snap_cell: leave out of the hits the returns of cells with too few returns to "
+                  "place their plane to half a voxel (true | false: snap or fuse as measured)",
+                  [](MapperConfig& c) -> bool& { return c.map.drop_unplaced; }));
   p.push_back(num("flush_every", "frames", "frames between OcTree flushes (0 = when saving)",
                   [](MapperConfig& c) -> int& { return c.flush_every; }));
   // ---- ray-cast range (virtual images) ----

@@ -3,6 +3,7 @@
 /// layers apart from its integrators): built once for one camera, it fuses full-resolution
 /// depth frames at their poses into a VoxelMap it does not own. ROS-free core.
 #include <Eigen/Geometry>
+#include <cstdint>
 #include <vector>
 
 #include "depth_track/core/camera.hpp"
@@ -35,6 +36,9 @@ class MapFuser {
   PinholeIntrinsics intrinsics_;
   std::vector<float> ray_x_, ray_y_;  ///< (u - cx) / fx per column, (v - cy) / fy per row
   DepthImage snapped_;                ///< the frame with returns snapped (MapConfig::snap_cell_px)
+  DepthImage edged_;  ///< the frame without the near sides of depth edges (edge_margin_px)
+  std::vector<std::uint8_t> dropped_;  ///< 1 where a return was left out of the hits
+  std::vector<float> edge_scratch_;      ///< the rows' window maxima
   RunningStats timing_;
 };
 

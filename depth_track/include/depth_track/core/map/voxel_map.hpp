@@ -107,6 +107,21 @@ struct MapConfig {
   /// Needs sigma(z), measured on the first frames as for max_fuse_noise_voxels; frames before
   /// it is known are fused as measured (docs/mapping.md, "Snapping returns to their cell's plane").
   int snap_cell_px = 16;
+  /// Returns on the near side of a depth edge are not fused as hits (0 = off): a return with
+  /// another within this many pixels (chessboard) that lies deeper by more than edge_jump of its
+  /// depth (and by more than 6 sigma(z) once the noise is measured). Stereo edge fattening and a
+  /// spot's lateral spread put foreground depths on background pixels: such returns sit in free
+  /// space beside the object, off every surface, and frames seen from a little apart mark
+  /// different voxels. Their rays still carve. The far side's returns are kept (docs/mapping.md,
+  /// "Depth edges").
+  int edge_margin_px = 2;
+  /// The relative depth step that makes a depth edge for edge_margin_px (0.1 = 10 %).
+  double edge_jump = 0.1;
+  /// With snap_cell_px: the returns of a cell with too few returns to place its plane to half a
+  /// voxel (n < 4 (sigma / voxel)^2: a noisy sensor's edges, small objects, holed patches) are
+  /// not fused as hits (false: snapped when the cell is planar, else fused as measured). At a
+  /// sigma(z) of several voxels either way puts them off the surface; their rays still carve.
+  bool drop_unplaced = true;
 
   /// Frames whose hits an unobserved voxel needs to become occupied (1 at OctoMap's 0.5, 2 at
   /// the default 0.8).
@@ -125,6 +140,12 @@ struct FuseStats {
   /// metres; 0 = none.
   double fuse_depth_limit_m = 0.0;
   int snapped_pixels = 0;     ///< returns fused at their cell's plane (MapConfig::snap_cell_px)
+  /// Returns on the near side of a depth edge, not fused as hits (MapConfig::edge_margin_px);
+  /// counted in valid_pixels, and their rays carve.
+  int edge_dropped = 0;
+  /// Returns of cells too small to place their plane (MapConfig::drop_unplaced), not fused as
+  /// hits; counted in valid_pixels, and their rays carve.
+  int unplaced_dropped = 0;
   /// Returns within the fuse depth limit (those fusion considered, snapping included).
   int returnsWithinFuseDepth() const { return valid_pixels - beyond_fuse_depth; }
   int hit_updates = 0;        ///< voxels updated as hit
