@@ -65,13 +65,18 @@ double threadCpuMs() {
 }
 
 // state.range(0): 0 = hit-only, 1 = probabilistic; range(1): carve stride (px); range(2): snap
-// cell (px, 0 = returns fused as measured).
+// cell (px, 0 = returns fused as measured); range(3): 1 = the defaults leave the near side of
+// depth edges and cells too small to place out of the hits, 0 = neither (before 2026-12-06).
 void BM_Fuse(benchmark::State& state) {
   const Frames& f = frames();
   MapConfig cfg;
   cfg.model = state.range(0) == 0 ? UpdateModel::kHitOnly : UpdateModel::kProbabilistic;
   cfg.carve_stride_px = static_cast<int>(state.range(1));
   cfg.snap_cell_px = static_cast<int>(state.range(2));
+  if (state.range(3) == 0) {
+    cfg.edge_margin_px = 0;
+    cfg.drop_unplaced = false;
+  }
   VoxelMap map(cfg);
   map.placeRegion(f.T_W_C.front());
   MapFuser fuser(map, f.run.intrinsics);
@@ -106,15 +111,17 @@ void BM_Fuse(benchmark::State& state) {
                       : std::string()) +
                  (cfg.snap_cell_px > 0
                       ? ", returns snapped (snap_cell " + std::to_string(cfg.snap_cell_px) + ")"
-                      : ", returns as measured (snap_cell 0)"));
+                      : ", returns as measured (snap_cell 0)") +
+                 (state.range(3) == 0 ? ", no edge margin, unplaced cells fused" : ""));
 }
 BENCHMARK(BM_Fuse)
-    ->Args({0, 1, 16})
-    ->Args({1, 8, 16})  // the defaults
-    ->Args({1, 8, 0})   // returns fused as measured
-    ->Args({1, 12, 16})
-    ->Args({1, 4, 16})
-    ->Args({1, 1, 16})
+    ->Args({0, 1, 16, 1})
+    ->Args({1, 8, 16, 1})  // the defaults
+    ->Args({1, 8, 16, 0})  // every return within the fuse depth hits (before 2026-12-06)
+    ->Args({1, 8, 0, 1})   // returns fused as measured
+    ->Args({1, 12, 16, 1})
+    ->Args({1, 4, 16, 1})
+    ->Args({1, 1, 16, 1})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 

@@ -554,7 +554,7 @@ int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const Dep
   const int w = in.width, h = in.height;
   out.width = w;
   out.height = h;
-  out.data = in.data;
+  out.data.resize(in.data.size());  // every pixel is written below
   row_max.resize(static_cast<std::size_t>(w) * h);
   std::vector<float> padded(static_cast<std::size_t>(w + 2 * margin), 0.0f);
   // Rows: the deepest return within +-margin columns (no return = 0; NaN and inf are none).
@@ -590,18 +590,25 @@ int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const Dep
     const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
     float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
     std::uint8_t* mrow = mask + static_cast<std::size_t>(v) * w;
-    for (int u = 0; u < w; ++u) {
-      const float z = row[u];
-      // Not a return, or deeper than the fuse depth (not fused anyway).
-      if (!(z > 0.0f) || !(z < std::numeric_limits<float>::infinity()) || z > z_max) continue;
-      float thr = jump_f * z;
-      if (with_noise) thr = std::max(thr, q0 + z * (q1 + z * q2));
-      if (win[u] - z > thr) {
-        dst[u] = 0.0f;
-        mrow[u] = 1;
-        ++dropped;
-      }
+    // Four pixels at a time. A return is positive and finite; one deeper than the fuse depth
+    // is not fused anyway (both comparisons are false for NaN).
+    using simd4::V4f;
+    using simd4::V4i;
+    const V4f zero = simd4::splat(0.0f), jump4 = simd4::splat(jump_f),
+              zlim = simd4::splat(std::min(z_max, std::numeric_limits<float>::max())),
+              c0 = simd4::splat(with_noise ? q0 : 0.0f), c1 = simd4::splat(with_noise ? q1 : 0.0f),
+              c2 = simd4::splat(with_noise ? q2 : 0.0f);
+    V4i count = {0, 0, 0, 0};
+    for (int u = 0; u < w; u += 4) {
+      const V4f z = simd4::load4OrZero(row, u, w), m = simd4::load4OrZero(win.data(), u, w);
+      const V4f by_noise = c0 + z * (c1 + z * c2), by_jump = jump4 * z;
+      const V4f thr = by_noise > by_jump ? by_noise : by_jump;
+      const V4i drop = (z > zero) & (z <= zlim) & (m - z > thr);
+      simd4::store4(dst, u, w, drop ? zero : z);
+      count -= drop;  // -1 per dropped lane
+      for (int k = 0; k < 4 && u + k < w; ++k) mrow[u + k] = drop[k] ? 1 : 0;
     }
+    dropped += count[0] + count[1] + count[2] + count[3];
   }
   return dropped;
 }
