@@ -100,6 +100,16 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   //               compl.  99.01 99.01 99.02 99.02 99.01 99.02 %  -> guard 98.8 %
   //   Jaccard             0.960 0.956 0.962 0.954 0.960 0.962    -> guard 0.94
   //   extruded / missed   0.02 / 0.02 % on every seed            -> guard 0.1 %
+  // Since the near side of depth edges and cells too small to place their plane are left out of
+  // the hits (edge_margin 2, drop_unplaced; 2026-12-06), seeds 11, 1-5:
+  //   precision           99.96-99.97 %                          -> guard 99.9 %
+  //   completeness        98.73 98.74 98.77 98.74 98.76 98.78 %  -> guard 98.5 %
+  //   strict (5 mm)       98.60 98.59 98.58 98.58 98.58 98.61 %  -> guard 98.0 %
+  //   true poses: prec.   99.96-99.97 %                          -> guard 99.9 %
+  //               compl.  98.76 98.76 98.79 98.76 98.76 98.78 %  -> guard 98.5 %
+  //   Jaccard             0.961 0.957 0.962 0.955 0.961 0.963    -> guard 0.94
+  // The rims those rules leave out cost 0.25 points of completeness here; on the D435 chair run
+  // they buy 7 points of precision (docs/mapping.md, "Depth edges").
   // (Before snapping, 2026-12-02: precision 99.31, strict 75.1 %, Jaccard 0.92.) The seeds spread
   // by up to 0.05 points; each guard is 0.06-0.3 points below the lowest seed, so a change in
   // fusion or tracking that costs the map a few tenths of a point fails here. The Jaccard index is
@@ -108,10 +118,10 @@ TEST(MapQuality, ChairRunTrackedMapIsPreciseAndCloseToTheGroundTruthMap) {
   // of one seed: the spread is measured with the test itself, not inside it.
   EXPECT_GE(q.precision, 0.95);  // product target
   EXPECT_GE(q.precision, 0.999);
-  EXPECT_GE(q.completeness, 0.988);
+  EXPECT_GE(q.completeness, 0.985);
   EXPECT_GE(q_strict.precision, 0.98);
   EXPECT_GE(q_gt.precision, 0.999);
-  EXPECT_GE(q_gt.completeness, 0.988);
+  EXPECT_GE(q_gt.completeness, 0.985);
   EXPECT_GE(diff.jaccard, 0.94);
   EXPECT_LT(diff.a_far_fraction, 0.001);
   EXPECT_LT(diff.b_far_fraction, 0.001);
