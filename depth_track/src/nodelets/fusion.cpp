@@ -113,6 +113,10 @@ class FusionNodelet : public nodelet::Nodelet {
     d.addf("fuse depth limit (m, 0 = none)", "%.2f", fuse_depth_limit_m_.load());
     d.addf("returns within the fuse depth fused at their cell's plane (last frame, %)", "%.1f",
            snapped_percent_.load());
+    d.addf("returns left out of the hits: near side of a depth edge (last frame, %)", "%.1f",
+           edge_percent_.load());
+    d.addf("returns left out of the hits: cells too small to place (last frame, %)", "%.1f",
+           unplaced_percent_.load());
     d.addf("since last publication (s)", "%.1f", last_publish_wall_s_ > 0 ? since : -1.0);
   }
 
@@ -142,7 +146,10 @@ class FusionNodelet : public nodelet::Nodelet {
       const FuseStats fs = fuser.fuse(depth, T_map_C);
       fuse_depth_limit_m_ = fs.fuse_depth_limit_m;
       const int considered = fs.returnsWithinFuseDepth();
-      snapped_percent_ = considered > 0 ? 100.0 * fs.snapped_pixels / considered : 0.0;
+      const auto percent = [&](int k) { return considered > 0 ? 100.0 * k / considered : 0.0; };
+      snapped_percent_ = percent(fs.snapped_pixels);
+      edge_percent_ = percent(fs.edge_dropped);
+      unplaced_percent_ = percent(fs.unplaced_dropped);
       // The noise limit (max_fuse_noise) is measured on the map's first frames (ms_noise > 0):
       // say once what it measured and what it leaves out.
       if (fs.ms_noise > 0.0) {
@@ -341,6 +348,8 @@ class FusionNodelet : public nodelet::Nodelet {
   MapperConfig config_;
   std::atomic<double> fuse_depth_limit_m_{0.0};  ///< the last fused frame's (FuseStats)
   std::atomic<double> snapped_percent_{0.0};     ///< share of its returns snapped (FuseStats)
+  std::atomic<double> edge_percent_{0.0};      ///< ... left out: near side of a depth edge
+  std::atomic<double> unplaced_percent_{0.0};  ///< ... left out: cells too small to place
   std::string logged_noise_limit_;               ///< the noise limit's summary as last logged
   std::shared_ptr<GraphContext> ctx_;
   double last_stamp_ = -1.0;
