@@ -676,7 +676,8 @@ TEST(Fusion, EdgeMarginLeavesTheBledNearSideOutAndKeepsBothSurfaces) {
     std::set<std::tuple<int, int, int>> face;
     for (int v = 200; v < 280; ++v)
       for (int u = 260; u < 360; ++u) {
-        const VoxelKey k = map.keyOf(Eigen::Vector3d((u - kK.cx) / kK.fx, (v - kK.cy) / kK.fy, 1.0));
+        const VoxelKey k =
+            map.keyOf(Eigen::Vector3d((u - kK.cx) / kK.fx, (v - kK.cy) / kK.fy, 1.0));
         face.emplace(k.x(), k.y(), k.z());
       }
     map.forEachOccupied([&](const VoxelKey& k) {
@@ -754,7 +755,8 @@ TEST(Fusion, CellsTooSmallToPlaceTheirPlaneAreLeftOutOfTheHits) {
     VoxelMap map(cfg);
     map.fuse(noisyTiltedPlane(0.004, 30), kK, Eigen::Isometry3d::Identity());  // the noise
     Result r;
-    for (unsigned f = 0; f < 4; ++f) r.last = map.fuse(sparse(31 + f), kK, Eigen::Isometry3d::Identity());
+    for (unsigned f = 0; f < 4; ++f)
+      r.last = map.fuse(sparse(31 + f), kK, Eigen::Isometry3d::Identity());
     map.forEachOccupied([&](const VoxelKey& k) {
       ++r.occupied;
       r.off += std::abs(n.dot(map.centerOf(k)) - c_plane) > 0.0075;  // beyond 1.5 voxels

@@ -546,7 +546,8 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
 // alone never reads as an edge). Stereo edge fattening and the spot's lateral spread put such
 // returns off the foreground's true outline, in free space beside it; the far side's returns are
 // kept (a return taken from the background lies on it). `mask` (w x h, zeroed by the caller) gets
-// 1 where a return was dropped. Returns the number dropped. Separable maximum over the window: rows, then columns.
+// 1 where a return was dropped. Returns the number dropped. The window's maximum is separable:
+// rows first, then columns.
 int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const DepthNoiseModel& noise,
                         float z_max, std::vector<float>& row_max, DepthImage& out,
                         std::uint8_t* mask) {
@@ -688,10 +689,10 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
                                           edged_, dropped_.data());
   const DepthImage& kept = edges ? edged_ : depth;
   if (snap)
-    st.snapped_pixels = snapToCellPlanes(kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px,
-                                         config.voxel_size_m, noise_model, static_cast<float>(z_max),
-                                         snapped_, unplaced ? dropped_.data() : nullptr,
-                                         st.unplaced_dropped);
+    st.snapped_pixels = snapToCellPlanes(
+        kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px, config.voxel_size_m, noise_model,
+        static_cast<float>(z_max), snapped_, unplaced ? dropped_.data() : nullptr,
+        st.unplaced_dropped);
   const DepthImage& fused = snap ? snapped_ : kept;
   fuseHits(m, fused, fr, static_cast<float>(z_max), st);
   st.valid_pixels += st.edge_dropped + st.unplaced_dropped;  // still returns of the frame
