@@ -340,10 +340,14 @@ struct Moments {
 // against sigma(z) at the cell's mean depth. Returns only up to z_max take part (deeper ones are
 // not fused anyway). With `dropped` (MapConfig::drop_unplaced), the returns of a cell with too
 // few returns to place its plane to half a voxel are zeroed in `out`, marked there and counted in
-// `unplaced` (finer cells are not tried: they hold fewer still). Returns the number snapped.
+// `unplaced` (finer cells are not tried: they hold fewer still). With q_sigmas > 0
+// (MapConfig::snap_step_sigmas) a cell is one plane only if the mean residual of its inliers in
+// each of its four quarters lies within q_sigmas standard errors (sigma / sqrt(n_quarter)) of
+// the plane: a small step or crease under a noise of several centimetres passes the RMS test
+// but tilts the quarters' means apart. Returns the number snapped.
 int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int cell,
-                     double voxel_m, const DepthNoiseModel& noise, float z_max, DepthImage& out,
-                     std::uint8_t* dropped, int& unplaced) {
+                     double voxel_m, double q_sigmas, const DepthNoiseModel& noise, float z_max,
+                     DepthImage& out, std::uint8_t* dropped, int& unplaced) {
   constexpr double kInlierSigmas = 3.0;  // a return within this of the plane is on it
   constexpr double kPlanarRms = 1.5;     // a cell is planar when its inliers' RMS is within this
   const int w = in.width, h = in.height;
@@ -393,6 +397,7 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     }
   };
   // Snaps the cell [u0, u0 + size) x [v0, v0 + size) when it is planar; false when it is not.
+  const V4f lane_offsets = {0.0f, 1.0f, 2.0f, 3.0f};
   auto snapCell = [&](int u0, int v0, int size) {
     const int u1 = std::min(w, u0 + size), v1 = std::min(h, v0 + size);
     const int min_valid = std::max(6, size * size / 4);
@@ -451,10 +456,13 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
                 c = simd4::splat(static_cast<float>(pl.c));
       LaneMoments off;
       V4f in_n = zero, in_ss = zero;
+      V4f q_n[4] = {zero, zero, zero, zero}, q_e[4] = {zero, zero, zero, zero};
+      const int uc = u0 + size / 2, vc = v0 + size / 2;
       for (int v = v0; v < v1; ++v) {
         const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
         const V4f y = simd4::splat(yv[v] - yc);
         float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
+        const int qv = v < vc ? 0 : 2;
         for (int u = u0; u < u1; u += 4) {
           lanes(row, u, u1, xc, z, m, iz, x);
           const V4f f = a + b * x + c * y;
@@ -463,6 +471,10 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
           const V4f on = ok ? one : zero, off_m = m - on;
           in_n += on;
           in_ss += on * e * e;
+          const V4f ui = simd4::splat(static_cast<float>(u - uc)) + lane_offsets;
+          const V4f left = ui < zero ? one : zero, on_l = on * left, on_r = on - on_l;
+          q_n[qv] += on_l, q_e[qv] += on_l * e;
+          q_n[qv + 1] += on_r, q_e[qv + 1] += on_r * e;
           off.add(off_m, x, y, off_m * iz);
           // 1 / f only where f > 0 (ok); the other lanes keep the frame's value.
           const V4f snapped_z = ok ? one / (ok ? f : one) : simd4::load4OrZero(row, u, u1);
@@ -473,6 +485,14 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
       n_in = double{in_n[0]} + in_n[1] + in_n[2] + in_n[3];
       ss = double{in_ss[0]} + in_ss[1] + in_ss[2] + in_ss[3];
       planar = n_in >= min_valid && 2.0 * n_in >= n;
+      // Each quarter's inliers on average on the plane (a step shows as quarters off it).
+      if (planar && q_sigmas > 0.0)
+        for (int q = 0; q < 4; ++q) {
+          const double qn = double{q_n[q][0]} + q_n[q][1] + q_n[q][2] + q_n[q][3];
+          if (qn < 2.0) continue;
+          const double qe = double{q_e[q][0]} + q_e[q][1] + q_e[q][2] + q_e[q][3];
+          if (std::abs(qe / qn) > q_sigmas * sigma / std::sqrt(qn)) planar = false;
+        }
       if (!planar || n_in == n) break;  // none left out: a second fit would be the same
       fit = all;
       fit.remove(off.total());
@@ -690,9 +710,9 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   const DepthImage& kept = edges ? edged_ : depth;
   if (snap)
     st.snapped_pixels = snapToCellPlanes(
-        kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px, config.voxel_size_m, noise_model,
-        static_cast<float>(z_max), snapped_, unplaced ? dropped_.data() : nullptr,
-        st.unplaced_dropped);
+        kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px, config.voxel_size_m,
+        config.snap_step_sigmas, noise_model, static_cast<float>(z_max), snapped_,
+        unplaced ? dropped_.data() : nullptr, st.unplaced_dropped);
   const DepthImage& fused = snap ? snapped_ : kept;
   fuseHits(m, fused, fr, static_cast<float>(z_max), st);
   st.valid_pixels += st.edge_dropped + st.unplaced_dropped;  // still returns of the frame

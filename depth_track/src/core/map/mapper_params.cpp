@@ -54,6 +54,10 @@ std::vector<MapperParamSpec> makeParams() {
                   "fuse each planar cell's returns at its fitted plane, cells this many pixels "
                   "square; 0 = fuse returns as measured",
                   [](MapperConfig& c) -> int& { return c.map.snap_cell_px; }));
+  p.push_back(num("snap_step_sigmas", "",
+                  "snap_cell: a cell is one plane only if each quarter's mean residual is within "
+                  "this many standard errors of its plane (a step under the noise); 0 = off",
+                  [](MapperConfig& c) -> double& { return c.map.snap_step_sigmas; }));
   p.push_back(num("edge_margin", "px",
                   "leave out of the hits the returns with a return this many pixels away that "
                   "lies deeper by edge_jump (the near side of a depth edge); 0 = off",

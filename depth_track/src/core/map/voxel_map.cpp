@@ -76,6 +76,8 @@ std::vector<std::string> MapConfig::validate() const {
   if (snap_cell_px != 0 && snap_cell_px != 4 && snap_cell_px != 8 && snap_cell_px != 16 &&
       snap_cell_px != 32)
     p.push_back("snap_cell_px must be 0 (off), 4, 8, 16 or 32 pixels");
+  if (!(std::isfinite(snap_step_sigmas) && snap_step_sigmas >= 0.0))
+    p.push_back("snap_step_sigmas must be >= 0 (0 = off)");
   if (edge_margin_px < 0 || edge_margin_px > 16)
     p.push_back("edge_margin_px must be in 0..16 pixels (0 = off)");
   if (!(std::isfinite(edge_jump) && edge_jump > 0.0 && edge_jump <= 1.0))
