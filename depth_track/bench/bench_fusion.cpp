@@ -66,13 +66,15 @@ double threadCpuMs() {
 
 // state.range(0): 0 = hit-only, 1 = probabilistic; range(1): carve stride (px); range(2): snap
 // cell (px, 0 = returns fused as measured); range(3): 1 = the defaults leave the near side of
-// depth edges and cells too small to place out of the hits, 0 = neither (before 2026-12-06).
+// depth edges and cells too small to place out of the hits, 0 = neither (before 2026-12-06);
+// range(4): snap_step_sigmas (the quarters' and bands' planarity test; 0 = off).
 void BM_Fuse(benchmark::State& state) {
   const Frames& f = frames();
   MapConfig cfg;
   cfg.model = state.range(0) == 0 ? UpdateModel::kHitOnly : UpdateModel::kProbabilistic;
   cfg.carve_stride_px = static_cast<int>(state.range(1));
   cfg.snap_cell_px = static_cast<int>(state.range(2));
+  cfg.snap_step_sigmas = static_cast<double>(state.range(4));
   if (state.range(3) == 0) {
     cfg.edge_margin_px = 0;
     cfg.drop_unplaced = false;
@@ -112,16 +114,18 @@ void BM_Fuse(benchmark::State& state) {
                  (cfg.snap_cell_px > 0
                       ? ", returns snapped (snap_cell " + std::to_string(cfg.snap_cell_px) + ")"
                       : ", returns as measured (snap_cell 0)") +
-                 (state.range(3) == 0 ? ", no edge margin, unplaced cells fused" : ""));
+                 (state.range(3) == 0 ? ", no edge margin, unplaced cells fused" : "") +
+                 (state.range(4) == 0 ? ", no quarters' and bands' test" : ""));
 }
 BENCHMARK(BM_Fuse)
-    ->Args({0, 1, 16, 1})
-    ->Args({1, 8, 16, 1})  // the defaults
-    ->Args({1, 8, 16, 0})  // every return within the fuse depth hits (before 2026-12-06)
-    ->Args({1, 8, 0, 1})   // returns fused as measured
-    ->Args({1, 12, 16, 1})
-    ->Args({1, 4, 16, 1})
-    ->Args({1, 1, 16, 1})
+    ->Args({0, 1, 16, 1, 3})
+    ->Args({1, 8, 16, 1, 3})  // the defaults
+    ->Args({1, 8, 16, 1, 0})  // the snap's RMS test alone (before 2026-12-06)
+    ->Args({1, 8, 16, 0, 0})  // ... and every return within the fuse depth hits
+    ->Args({1, 8, 0, 1, 3})   // returns fused as measured
+    ->Args({1, 12, 16, 1, 3})
+    ->Args({1, 4, 16, 1, 3})
+    ->Args({1, 1, 16, 1, 3})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 

@@ -341,10 +341,11 @@ struct Moments {
 // not fused anyway). With `dropped` (MapConfig::drop_unplaced), the returns of a cell with too
 // few returns to place its plane to half a voxel are zeroed in `out`, marked there and counted in
 // `unplaced` (finer cells are not tried: they hold fewer still). With q_sigmas > 0
-// (MapConfig::snap_step_sigmas) a cell is one plane only if the mean residual of its inliers in
-// each of its four quarters lies within q_sigmas standard errors (sigma / sqrt(n_quarter)) of
-// the plane: a small step or crease under a noise of several centimetres passes the RMS test
-// but tilts the quarters' means apart. Returns the number snapped.
+// (MapConfig::snap_step_sigmas), where sigma exceeds a voxel, a cell is one plane only if the
+// mean residual of its inliers in each of its four quarters, four column bands and four row
+// bands lies within q_sigmas standard errors (sigma / sqrt(n)) of the plane: a corner or step
+// under a noise of several centimetres passes the RMS test but leaves some of them off the
+// plane. Returns the number snapped.
 int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int cell,
                      double voxel_m, double q_sigmas, const DepthNoiseModel& noise, float z_max,
                      DepthImage& out, std::uint8_t* dropped, int& unplaced) {
@@ -445,6 +446,9 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     Moments fit = all;
     double n_in = 0.0, ss = 0.0;
     bool written = false, planar = false;
+    // The quarters' and bands' test only where the noise exceeds a voxel: under it, a step the
+    // RMS test passes (up to about 2 sigma) is snapped at most a voxel off either surface.
+    const bool steps = q_sigmas > 0.0 && sigma > voxel_m;
     for (int pass = 0; pass < 2; ++pass) {
       Plane pl;
       if (!fit.solve(&pl)) {
@@ -457,12 +461,22 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
       LaneMoments off;
       V4f in_n = zero, in_ss = zero;
       V4f q_n[4] = {zero, zero, zero, zero}, q_e[4] = {zero, zero, zero, zero};
+      // Per column (lane k of chunk (u - u0) / 4) and per row: inliers and their residual sums.
+      // Only the cell's own entries are cleared (a 4 px cell, an L515's usual, uses one chunk
+      // and four rows); rows beyond the frame's edge stay empty.
+      V4f col_n[8], col_e[8];
+      double row_n[32], row_e[32];
+      if (steps) {
+        for (int i = 0; i < (size + 3) / 4; ++i) col_n[i] = zero, col_e[i] = zero;
+        for (int i = 0; i < size; ++i) row_n[i] = 0.0, row_e[i] = 0.0;
+      }
       const int uc = u0 + size / 2, vc = v0 + size / 2;
       for (int v = v0; v < v1; ++v) {
         const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
         const V4f y = simd4::splat(yv[v] - yc);
         float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
         const int qv = v < vc ? 0 : 2;
+        V4f rn = zero, re = zero;
         for (int u = u0; u < u1; u += 4) {
           lanes(row, u, u1, xc, z, m, iz, x);
           const V4f f = a + b * x + c * y;
@@ -471,14 +485,23 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
           const V4f on = ok ? one : zero, off_m = m - on;
           in_n += on;
           in_ss += on * e * e;
-          const V4f ui = simd4::splat(static_cast<float>(u - uc)) + lane_offsets;
-          const V4f left = ui < zero ? one : zero, on_l = on * left, on_r = on - on_l;
-          q_n[qv] += on_l, q_e[qv] += on_l * e;
-          q_n[qv + 1] += on_r, q_e[qv + 1] += on_r * e;
+          if (steps) {  // loop-invariant: the compiler keeps two loops
+            const V4f ui = simd4::splat(static_cast<float>(u - uc)) + lane_offsets;
+            const V4f left = ui < zero ? one : zero, on_l = on * left, on_r = on - on_l;
+            q_n[qv] += on_l, q_e[qv] += on_l * e;
+            q_n[qv + 1] += on_r, q_e[qv + 1] += on_r * e;
+            const V4f oe = on * e;
+            col_n[(u - u0) >> 2] += on, col_e[(u - u0) >> 2] += oe;
+            rn += on, re += oe;
+          }
           off.add(off_m, x, y, off_m * iz);
           // 1 / f only where f > 0 (ok); the other lanes keep the frame's value.
           const V4f snapped_z = ok ? one / (ok ? f : one) : simd4::load4OrZero(row, u, u1);
           simd4::store4(dst, u, u1, snapped_z);
+        }
+        if (steps) {
+          row_n[v - v0] = double{rn[0]} + rn[1] + rn[2] + rn[3];
+          row_e[v - v0] = double{re[0]} + re[1] + re[2] + re[3];
         }
       }
       written = true;
@@ -486,13 +509,30 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
       ss = double{in_ss[0]} + in_ss[1] + in_ss[2] + in_ss[3];
       planar = n_in >= min_valid && 2.0 * n_in >= n;
       // Each quarter's inliers on average on the plane (a step shows as quarters off it).
-      if (planar && q_sigmas > 0.0)
+      if (planar && steps)
         for (int q = 0; q < 4; ++q) {
           const double qn = double{q_n[q][0]} + q_n[q][1] + q_n[q][2] + q_n[q][3];
           if (qn < 2.0) continue;
           const double qe = double{q_e[q][0]} + q_e[q][1] + q_e[q][2] + q_e[q][3];
           if (std::abs(qe / qn) > q_sigmas * sigma / std::sqrt(qn)) planar = false;
         }
+      // ... and each of its four column bands and four row bands: a straight step through the
+      // cell, which the plane's tilt takes up so that the quarters' means stay near it, leaves
+      // the bands beside the step off the plane.
+      if (planar && steps) {
+        const int bw = std::max(1, size / 4);
+        auto offPlane = [&](double bn, double be) {
+          return bn >= 2.0 && std::abs(be / bn) > q_sigmas * sigma / std::sqrt(bn);
+        };
+        for (int band = 0; band < 4 && planar; ++band) {
+          double cn = 0.0, ce = 0.0, rn = 0.0, re = 0.0;
+          for (int i = band * bw; i < (band + 1) * bw; ++i) {
+            cn += col_n[i >> 2][i & 3], ce += col_e[i >> 2][i & 3];
+            rn += row_n[i], re += row_e[i];
+          }
+          if (offPlane(cn, ce) || offPlane(rn, re)) planar = false;
+        }
+      }
       if (!planar || n_in == n) break;  // none left out: a second fit would be the same
       fit = all;
       fit.remove(off.total());

@@ -55,8 +55,9 @@ std::vector<MapperParamSpec> makeParams() {
                   "square; 0 = fuse returns as measured",
                   [](MapperConfig& c) -> int& { return c.map.snap_cell_px; }));
   p.push_back(num("snap_step_sigmas", "",
-                  "snap_cell: a cell is one plane only if each quarter's mean residual is within "
-                  "this many standard errors of its plane (a step under the noise); 0 = off",
+                  "snap_cell: where the noise exceeds a voxel, a cell is one plane only if the mean "
+                  "residual of each quarter and of each quarter-wide band is within this many "
+                  "standard errors of its plane (a step under the noise); 0 = off",
                   [](MapperConfig& c) -> double& { return c.map.snap_step_sigmas; }));
   p.push_back(num("edge_margin", "px",
                   "leave out of the hits the returns with a return this many pixels away that "

@@ -107,13 +107,14 @@ struct MapConfig {
   /// Needs sigma(z), measured on the first frames as for max_fuse_noise_voxels; frames before
   /// it is known are fused as measured (docs/mapping.md, "Snapping returns to their cell's plane").
   int snap_cell_px = 16;
-  /// snap_cell_px: a cell is one plane only if its inliers' mean residual in each of its four
-  /// quarters lies within this many standard errors (sigma / sqrt(n_quarter)) of the fitted
-  /// plane (0 = off: the RMS test alone, before 2026-12-06). Under a D435's centimetres of noise a
-  /// corner or an off-centre step of a few centimetres passes the RMS test, and its returns would
-  /// be snapped onto a plane between the two surfaces; the quarters' means tell. A straight step
-  /// through the cell's middle is mostly taken up by the plane's tilt and still passes
-  /// (docs/mapping.md, "Depth edges and cells too small to place").
+  /// snap_cell_px: where sigma(z) exceeds a voxel, a cell is one plane only if its inliers' mean
+  /// residual in each of its four quarters, four column bands and four row bands lies within
+  /// this many standard errors (sigma / sqrt(n)) of the fitted plane (0 = off: the RMS test
+  /// alone, before 2026-12-06). Under a D435's centimetres of noise a corner or a step of a few
+  /// centimetres passes the RMS test, and its returns would be snapped onto a plane between the
+  /// two surfaces; a corner leaves quarters off the plane, a straight step (which the plane's
+  /// tilt mostly takes up) the bands beside it (docs/mapping.md, "Depth edges and cells too small
+  /// to place").
   double snap_step_sigmas = 3.0;
   /// Returns on the near side of a depth edge are not fused as hits (0 = off): a return with
   /// another within this many pixels (chessboard) that lies deeper by more than edge_jump of its
