@@ -55,6 +55,18 @@ MapConfig unboundedConfig(double voxel_m, UpdateModel model) {
 
 const PinholeIntrinsics kK = PinholeIntrinsics::isotropic(640, 480, 525.0);
 
+// A map with config `c` is refused (std::invalid_argument) with a message naming `field`;
+// `value` says which setting in the failure message.
+template <class T>
+void expectRefused(const MapConfig& c, const char* field, T value) {
+  try {
+    VoxelMap m(c);
+    ADD_FAILURE() << field << " " << value << " was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 
 TEST(Fusion, FrontoParallelPlaneFillsOneVoxelLayer) {
@@ -503,12 +515,7 @@ TEST(Fusion, MaxFuseNoiseMeasuresTheSensorAndLeavesItsNoisiestReturnsOut) {
   EXPECT_EQ(wall.fuse(d, kK, Eigen::Isometry3d::Identity()).beyond_fuse_depth, 0);
   EXPECT_EQ(wall.noiseFuseDepth(), 0.0);
   cfg.max_fuse_noise_voxels = -1.0;
-  try {
-    VoxelMap bad(cfg);
-    ADD_FAILURE() << "a negative max_fuse_noise_voxels was accepted";
-  } catch (const std::invalid_argument& e) {
-    EXPECT_NE(std::string(e.what()).find("max_fuse_noise_voxels"), std::string::npos) << e.what();
-  }
+  expectRefused(cfg, "max_fuse_noise_voxels", cfg.max_fuse_noise_voxels);
 }
 
 TEST(Fusion, SnapCellFusesEachPlanarCellAtItsPlane) {
@@ -593,12 +600,7 @@ TEST(Fusion, SnapCellFusesEachPlanarCellAtItsPlane) {
             0);
   for (int bad : {-1, 2, 12, 64}) {
     cfg.snap_cell_px = bad;
-    try {
-      VoxelMap m(cfg);
-      ADD_FAILURE() << "snap_cell_px " << bad << " was accepted";
-    } catch (const std::invalid_argument& e) {
-      EXPECT_NE(std::string(e.what()).find("snap_cell_px"), std::string::npos) << e.what();
-    }
+    expectRefused(cfg, "snap_cell_px", bad);
   }
 }
 
@@ -637,12 +639,7 @@ TEST(Fusion, MaxFuseDepthLeavesDeeperReturnsOut) {
   EXPECT_GT(all.fuse(planeDepth(kK, Eigen::Vector3d::UnitZ(), 3.0), kK,
                      Eigen::Isometry3d::Identity()).hit_updates, 0);
   cfg.max_fuse_depth_m = -1.0;
-  try {
-    VoxelMap bad(cfg);
-    ADD_FAILURE() << "a negative max_fuse_depth_m was accepted";
-  } catch (const std::invalid_argument& e) {
-    EXPECT_NE(std::string(e.what()).find("max_fuse_depth_m"), std::string::npos) << e.what();
-  }
+  expectRefused(cfg, "max_fuse_depth_m", cfg.max_fuse_depth_m);
 }
 
 TEST(Fusion, EdgeMarginLeavesTheBledNearSideOutAndKeepsBothSurfaces) {
@@ -717,17 +714,12 @@ TEST(Fusion, EdgeMarginLeavesTheBledNearSideOutAndKeepsBothSurfaces) {
   for (int bad : {-1, 17}) {
     MapConfig b = cfg;
     b.edge_margin_px = bad;
-    EXPECT_THROW(VoxelMap m(b), std::invalid_argument) << "edge_margin_px " << bad;
+    expectRefused(b, "edge_margin_px", bad);
   }
   for (double bad : {0.0, -0.1, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
     MapConfig b = cfg;
     b.edge_jump = bad;
-    try {
-      VoxelMap m(b);
-      ADD_FAILURE() << "edge_jump " << bad << " was accepted";
-    } catch (const std::invalid_argument& e) {
-      EXPECT_NE(std::string(e.what()).find("edge_jump"), std::string::npos) << e.what();
-    }
+    expectRefused(b, "edge_jump", bad);
   }
 }
 
@@ -840,6 +832,6 @@ TEST(Fusion, SnapStepSigmasKeepsStepsUnderTheNoiseOffTheMiddlePlane) {
   MapConfig bad;
   for (double b : {-1.0, std::numeric_limits<double>::quiet_NaN()}) {
     bad.snap_step_sigmas = b;
-    EXPECT_THROW(VoxelMap m(bad), std::invalid_argument) << "snap_step_sigmas " << b;
+    expectRefused(bad, "snap_step_sigmas", b);
   }
 }

@@ -398,7 +398,6 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
     }
   };
   // Snaps the cell [u0, u0 + size) x [v0, v0 + size) when it is planar; false when it is not.
-  const V4f lane_offsets = {0.0f, 1.0f, 2.0f, 3.0f};
   auto snapCell = [&](int u0, int v0, int size) {
     const int u1 = std::min(w, u0 + size), v1 = std::min(h, v0 + size);
     const int min_valid = std::max(6, size * size / 4);
@@ -460,22 +459,23 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
                 c = simd4::splat(static_cast<float>(pl.c));
       LaneMoments off;
       V4f in_n = zero, in_ss = zero;
-      V4f q_n[4] = {zero, zero, zero, zero}, q_e[4] = {zero, zero, zero, zero};
-      // Per column (lane k of chunk (u - u0) / 4) and per row: inliers and their residual sums.
-      // Only the cell's own entries are cleared (a 4 px cell, an L515's usual, uses one chunk
-      // and four rows); rows beyond the frame's edge stay empty.
-      V4f col_n[8], col_e[8];
+      // For the step test: inliers and their residual sums per column (lane k of chunk
+      // (u - u0) / 4) of the cell's upper and lower half, and per row. The quarters, column bands
+      // and row bands are sums of these. Only the cell's own entries are cleared (a 4 px cell, an
+      // L515's usual, uses one chunk and four rows); rows beyond the frame's edge stay empty.
+      V4f col_n[2][8], col_e[2][8];
       double row_n[32], row_e[32];
       if (steps) {
-        for (int i = 0; i < (size + 3) / 4; ++i) col_n[i] = zero, col_e[i] = zero;
+        for (int i = 0; i < (size + 3) / 4; ++i)
+          col_n[0][i] = col_n[1][i] = col_e[0][i] = col_e[1][i] = zero;
         for (int i = 0; i < size; ++i) row_n[i] = 0.0, row_e[i] = 0.0;
       }
-      const int uc = u0 + size / 2, vc = v0 + size / 2;
+      const int vc = v0 + size / 2;
       for (int v = v0; v < v1; ++v) {
         const float* row = in.data.data() + static_cast<std::size_t>(v) * w;
         const V4f y = simd4::splat(yv[v] - yc);
         float* dst = out.data.data() + static_cast<std::size_t>(v) * w;
-        const int qv = v < vc ? 0 : 2;
+        const int half = v < vc ? 0 : 1;
         V4f rn = zero, re = zero;
         for (int u = u0; u < u1; u += 4) {
           lanes(row, u, u1, xc, z, m, iz, x);
@@ -486,12 +486,8 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
           in_n += on;
           in_ss += on * e * e;
           if (steps) {  // loop-invariant: the compiler keeps two loops
-            const V4f ui = simd4::splat(static_cast<float>(u - uc)) + lane_offsets;
-            const V4f left = ui < zero ? one : zero, on_l = on * left, on_r = on - on_l;
-            q_n[qv] += on_l, q_e[qv] += on_l * e;
-            q_n[qv + 1] += on_r, q_e[qv + 1] += on_r * e;
             const V4f oe = on * e;
-            col_n[(u - u0) >> 2] += on, col_e[(u - u0) >> 2] += oe;
+            col_n[half][(u - u0) >> 2] += on, col_e[half][(u - u0) >> 2] += oe;
             rn += on, re += oe;
           }
           off.add(off_m, x, y, off_m * iz);
@@ -508,29 +504,33 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
       n_in = double{in_n[0]} + in_n[1] + in_n[2] + in_n[3];
       ss = double{in_ss[0]} + in_ss[1] + in_ss[2] + in_ss[3];
       planar = n_in >= min_valid && 2.0 * n_in >= n;
-      // Each quarter's inliers on average on the plane (a step shows as quarters off it).
-      if (planar && steps)
-        for (int q = 0; q < 4; ++q) {
-          const double qn = double{q_n[q][0]} + q_n[q][1] + q_n[q][2] + q_n[q][3];
-          if (qn < 2.0) continue;
-          const double qe = double{q_e[q][0]} + q_e[q][1] + q_e[q][2] + q_e[q][3];
-          if (std::abs(qe / qn) > q_sigmas * sigma / std::sqrt(qn)) planar = false;
-        }
-      // ... and each of its four column bands and four row bands: a straight step through the
-      // cell, which the plane's tilt takes up so that the quarters' means stay near it, leaves
-      // the bands beside the step off the plane.
+      // The step test: the inliers of each quarter, each column band and each row band on
+      // average on the plane. A corner leaves quarters off it; a straight step through the cell,
+      // which the plane's tilt takes up so that the quarters' means stay near it, leaves the
+      // bands beside the step off it.
       if (planar && steps) {
-        const int bw = std::max(1, size / 4);
-        auto offPlane = [&](double bn, double be) {
+        const auto offPlane = [&](double bn, double be) {
           return bn >= 2.0 && std::abs(be / bn) > q_sigmas * sigma / std::sqrt(bn);
         };
-        for (int band = 0; band < 4 && planar; ++band) {
-          double cn = 0.0, ce = 0.0, rn = 0.0, re = 0.0;
-          for (int i = band * bw; i < (band + 1) * bw; ++i) {
-            cn += col_n[i >> 2][i & 3], ce += col_e[i >> 2][i & 3];
-            rn += row_n[i], re += row_e[i];
-          }
-          if (offPlane(cn, ce) || offPlane(rn, re)) planar = false;
+        // Sums over columns [i0, i1) of the halves h0..h1.
+        const auto columns = [&](int i0, int i1, int h0, int h1, double& cn, double& ce) {
+          cn = ce = 0.0;
+          for (int hh = h0; hh <= h1; ++hh)
+            for (int i = i0; i < i1; ++i)
+              cn += col_n[hh][i >> 2][i & 3], ce += col_e[hh][i >> 2][i & 3];
+        };
+        double cn, ce;
+        for (int q = 0; q < 4 && planar; ++q) {  // quarters
+          const int hh = q >> 1, i0 = (q & 1) * (size / 2);
+          columns(i0, i0 + size / 2, hh, hh, cn, ce);
+          planar = !offPlane(cn, ce);
+        }
+        const int bw = std::max(1, size / 4);
+        for (int band = 0; band < 4 && planar; ++band) {  // column and row bands
+          columns(band * bw, (band + 1) * bw, 0, 1, cn, ce);
+          double rn = 0.0, re = 0.0;
+          for (int i = band * bw; i < (band + 1) * bw; ++i) rn += row_n[i], re += row_e[i];
+          planar = !offPlane(cn, ce) && !offPlane(rn, re);
         }
       }
       if (!planar || n_in == n) break;  // none left out: a second fit would be the same
@@ -605,8 +605,8 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
 // than jump z (and, once the noise is known, by more than kEdgeSigmas sigma(z), so that noise
 // alone never reads as an edge). Stereo edge fattening and the spot's lateral spread put such
 // returns off the foreground's true outline, in free space beside it; the far side's returns are
-// kept (a return taken from the background lies on it). `mask` (w x h, zeroed by the caller) gets
-// 1 where a return was dropped. Returns the number dropped. The window's maximum is separable:
+// kept (a return taken from the background lies on it). `mask` (w x h) gets 1 where a return was
+// dropped and 0 everywhere else. Returns the number dropped. The window's maximum is separable:
 // rows first, then columns.
 int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const DepthNoiseModel& noise,
                         float z_max, std::vector<float>& row_max, DepthImage& out,
@@ -742,7 +742,11 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
   const bool snap = config.snap_cell_px > 0 && noise_model.known();
   const bool unplaced = snap && config.drop_unplaced;
   const bool drops = edges || unplaced;
-  if (drops) dropped_.assign(depth.data.size(), 0);
+  // The edge pass writes every entry of the mask; without it the snap only marks its drops.
+  if (edges)
+    dropped_.resize(depth.data.size());
+  else if (drops)
+    dropped_.assign(depth.data.size(), 0);
   if (edges)
     st.edge_dropped = dropNearSideOfEdges(depth, config.edge_margin_px, config.edge_jump,
                                           noise_model, static_cast<float>(z_max), edge_scratch_,
