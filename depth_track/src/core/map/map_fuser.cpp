@@ -736,10 +736,18 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
                                 noise_depth);
   st.fuse_depth_limit_m = std::isfinite(z_max) ? z_max : 0.0;
   const DepthNoiseModel& noise_model = settles ? noise->model : m.noise_model;
+  // The limit cuts the snapped depth, not the return: a cell near it is fitted with the returns
+  // up to kCutTailSigmas sigma beyond it, and its returns are fused where the cell's plane lies
+  // within it. Cut return by return, only the returns that noise pulled nearer would be fused
+  // at the limit's depth, a surface drawn towards the camera by about sigma there and never
+  // carved (the rays beyond the limit do not carve).
+  constexpr double kCutTailSigmas = 3.0;
   // Returns left out of the hits (the near side of a depth edge, cells whose plane cannot be
   // placed) are zeroed in the fused image and marked in dropped_; their rays still carve.
   const bool edges = config.edge_margin_px > 0;
   const bool snap = config.snap_cell_px > 0 && noise_model.known();
+  const double z_fit =
+      snap && std::isfinite(z_max) ? z_max + kCutTailSigmas * noise_model.sigmaAt(z_max) : z_max;
   const bool unplaced = snap && config.drop_unplaced;
   const bool drops = edges || unplaced;
   // The edge pass writes every entry of the mask; without it the snap only marks its drops.
@@ -749,13 +757,13 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
     dropped_.assign(depth.data.size(), 0);
   if (edges)
     st.edge_dropped = dropNearSideOfEdges(depth, config.edge_margin_px, config.edge_jump,
-                                          noise_model, static_cast<float>(z_max), edge_scratch_,
+                                          noise_model, static_cast<float>(z_fit), edge_scratch_,
                                           edged_, dropped_.data());
   const DepthImage& kept = edges ? edged_ : depth;
   if (snap)
     st.snapped_pixels = snapToCellPlanes(
         kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px, config.voxel_size_m,
-        config.snap_step_sigmas, noise_model, static_cast<float>(z_max), snapped_,
+        config.snap_step_sigmas, noise_model, static_cast<float>(z_fit), snapped_,
         unplaced ? dropped_.data() : nullptr, st.unplaced_dropped);
   const DepthImage& fused = snap ? snapped_ : kept;
   fuseHits(m, fused, fr, static_cast<float>(z_max), st);
