@@ -95,6 +95,9 @@ struct MapConfig {
   /// tracker's auto_noise), which sets the depth where it reaches the limit once: 6 voxels of
   /// 5 mm put it at 2.4 m for a rendered D435, beyond the 4 m range for a Kinect or an L515
   /// (docs/mapping.md, "The noise limit"). The lower of this depth and max_fuse_depth_m applies.
+  /// With snap_cell_px, a snapped return is cut at its cell's plane (the cells near the limit
+  /// fitted with returns up to 3 sigma beyond it), not where it was measured: cut return by
+  /// return, the noise's near side alone would be fused there.
   double max_fuse_noise_voxels = 6.0;
   /// Returns fused at their cell's plane (0 = off: every return fused where it was measured).
   /// One-hit occupancy marks every voxel a noisy return lands in, so a wall becomes a shell
