@@ -337,18 +337,20 @@ struct Moments {
 // cell's fitted plane. In the camera frame a plane n.p = d holds the points z (x, y, 1) with
 // 1/z = (n_x x + n_y y + n_z) / d, so inverse depth w = 1/z is fitted linearly in the pixel ray
 // (x, y); a return's distance from the plane in depth is z^2 (w - w_fit) to first order, judged
-// against sigma(z) at the cell's mean depth. Returns only up to z_max take part (deeper ones are
-// not fused anyway). With `dropped` (MapConfig::drop_unplaced), the returns of a cell with too
+// against sigma(z) at the cell's mean depth. Returns only up to z_fit take part (deeper ones are
+// not fused anyway; z_fit lies beyond the fuse depth z_fuse so that the cut falls on the cells'
+// planes). With `dropped` (MapConfig::drop_unplaced), the returns up to z_fuse of a cell with too
 // few returns to place its plane to half a voxel are zeroed in `out`, marked there and counted in
-// `unplaced` (finer cells are not tried: they hold fewer still). With q_sigmas > 0
+// `unplaced` (finer cells are not tried: they hold fewer still); those beyond it stay as they
+// were, and the hit pass counts them as beyond the fuse depth. With q_sigmas > 0
 // (MapConfig::snap_step_sigmas), where sigma exceeds a voxel, a cell is one plane only if the
 // mean residual of its inliers in each of its four quarters, four column bands and four row
 // bands lies within q_sigmas standard errors (sigma / sqrt(n)) of the plane: a corner or step
 // under a noise of several centimetres passes the RMS test but leaves some of them off the
 // plane. Returns the number snapped.
 int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int cell,
-                     double voxel_m, double q_sigmas, const DepthNoiseModel& noise, float z_max,
-                     DepthImage& out, std::uint8_t* dropped, int& unplaced) {
+                     double voxel_m, double q_sigmas, const DepthNoiseModel& noise, float z_fit,
+                     float z_fuse, DepthImage& out, std::uint8_t* dropped, int& unplaced) {
   constexpr double kInlierSigmas = 3.0;  // a return within this of the plane is on it
   constexpr double kPlanarRms = 1.5;     // a cell is planar when its inliers' RMS is within this
   const int w = in.width, h = in.height;
@@ -360,9 +362,9 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
   // float, over rays centred on the cell's (x, y), and added up in double.
   using simd4::V4f;
   using simd4::V4i;
-  // A return is positive and finite (as in the hit pass), and up to z_max.
+  // A return is positive and finite (as in the hit pass), and up to z_fit.
   const V4f zero = simd4::splat(0.0f), one = simd4::splat(1.0f),
-            zmax4 = simd4::splat(std::min(z_max, std::numeric_limits<float>::max()));
+            zmax4 = simd4::splat(std::min(z_fit, std::numeric_limits<float>::max()));
   struct LaneMoments {
     V4f n{}, sx{}, sy{}, sw{}, sxx{}, sxy{}, syy{}, sxw{}, syw{};
     // m: 1 for a return, 0 for none; iz: inverse depth, 0 where m is.
@@ -427,7 +429,7 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
         const std::size_t r = static_cast<std::size_t>(v) * w;
         for (int u = u0; u < u1; ++u) {
           const float zr = in.data[r + u];
-          if (zr > 0.0f && zr < std::numeric_limits<float>::infinity() && zr <= z_max) {
+          if (zr > 0.0f && zr < std::numeric_limits<float>::infinity() && zr <= z_fuse) {
             out.data[r + u] = 0.0f;
             dropped[r + u] = 1;
             ++unplaced;
@@ -606,11 +608,12 @@ int snapToCellPlanes(const DepthImage& in, const float* xu, const float* yv, int
 // alone never reads as an edge). Stereo edge fattening and the spot's lateral spread put such
 // returns off the foreground's true outline, in free space beside it; the far side's returns are
 // kept (a return taken from the background lies on it). `mask` (w x h) gets 1 where a return was
-// dropped and 0 everywhere else. Returns the number dropped. The window's maximum is separable:
-// rows first, then columns.
+// dropped and 0 everywhere else. Only returns up to z_fit are judged (the snap's depth). Returns
+// the number dropped up to the fuse depth z_fuse; those dropped beyond it are counted in `beyond`.
+// The window's maximum is separable: rows first, then columns.
 int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const DepthNoiseModel& noise,
-                        float z_max, std::vector<float>& row_max, DepthImage& out,
-                        std::uint8_t* mask) {
+                        float z_fit, float z_fuse, std::vector<float>& row_max, DepthImage& out,
+                        std::uint8_t* mask, int& beyond) {
   constexpr double kEdgeSigmas = 6.0;
   const int w = in.width, h = in.height;
   out.width = w;
@@ -656,20 +659,24 @@ int dropNearSideOfEdges(const DepthImage& in, int margin, double jump, const Dep
     using simd4::V4f;
     using simd4::V4i;
     const V4f zero = simd4::splat(0.0f), jump4 = simd4::splat(jump_f),
-              zlim = simd4::splat(std::min(z_max, std::numeric_limits<float>::max())),
+              zlim = simd4::splat(std::min(z_fit, std::numeric_limits<float>::max())),
+              zfuse = simd4::splat(std::min(z_fuse, std::numeric_limits<float>::max())),
               c0 = simd4::splat(with_noise ? q0 : 0.0f), c1 = simd4::splat(with_noise ? q1 : 0.0f),
               c2 = simd4::splat(with_noise ? q2 : 0.0f);
-    V4i count = {0, 0, 0, 0};
+    V4i count = {0, 0, 0, 0}, count_beyond = {0, 0, 0, 0};
     for (int u = 0; u < w; u += 4) {
       const V4f z = simd4::load4OrZero(row, u, w), m = simd4::load4OrZero(win.data(), u, w);
       const V4f by_noise = c0 + z * (c1 + z * c2), by_jump = jump4 * z;
       const V4f thr = by_noise > by_jump ? by_noise : by_jump;
       const V4i drop = (z > zero) & (z <= zlim) & (m - z > thr);
       simd4::store4(dst, u, w, drop ? zero : z);
-      count -= drop;  // -1 per dropped lane
+      const V4i within = drop & (z <= zfuse);
+      count -= within;  // -1 per dropped lane
+      count_beyond -= drop ^ within;
       for (int k = 0; k < 4 && u + k < w; ++k) mrow[u + k] = drop[k] ? 1 : 0;
     }
     dropped += count[0] + count[1] + count[2] + count[3];
+    beyond += count_beyond[0] + count_beyond[1] + count_beyond[2] + count_beyond[3];
   }
   return dropped;
 }
@@ -755,19 +762,24 @@ FuseStats MapFuser::fuse(const DepthImage& depth, const Eigen::Isometry3d& T_W_C
     dropped_.resize(depth.data.size());
   else if (drops)
     dropped_.assign(depth.data.size(), 0);
+  int edge_beyond = 0;  // near-side returns beyond the fuse depth: counted as beyond it
   if (edges)
     st.edge_dropped = dropNearSideOfEdges(depth, config.edge_margin_px, config.edge_jump,
-                                          noise_model, static_cast<float>(z_fit), edge_scratch_,
-                                          edged_, dropped_.data());
+                                          noise_model, static_cast<float>(z_fit),
+                                          static_cast<float>(z_max), edge_scratch_, edged_,
+                                          dropped_.data(), edge_beyond);
   const DepthImage& kept = edges ? edged_ : depth;
   if (snap)
     st.snapped_pixels = snapToCellPlanes(
         kept, ray_x_.data(), ray_y_.data(), config.snap_cell_px, config.voxel_size_m,
-        config.snap_step_sigmas, noise_model, static_cast<float>(z_fit), snapped_,
-        unplaced ? dropped_.data() : nullptr, st.unplaced_dropped);
+        config.snap_step_sigmas, noise_model, static_cast<float>(z_fit),
+        static_cast<float>(z_max), snapped_, unplaced ? dropped_.data() : nullptr,
+        st.unplaced_dropped);
   const DepthImage& fused = snap ? snapped_ : kept;
   fuseHits(m, fused, fr, static_cast<float>(z_max), st);
-  st.valid_pixels += st.edge_dropped + st.unplaced_dropped;  // still returns of the frame
+  // Still returns of the frame.
+  st.valid_pixels += st.edge_dropped + st.unplaced_dropped + edge_beyond;
+  st.beyond_fuse_depth += edge_beyond;
   if (st.valid_pixels == 0) {
     // Nothing was written (voxels and chunks are only touched for returns): undo the frame count.
     m.frame = frame_before;
