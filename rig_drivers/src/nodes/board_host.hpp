@@ -1,8 +1,9 @@
 #pragma once
 // ROS adapter shared by track_host, car_host and truck_host: loads BoardLinkConfig from private
 // parameters, runs a BoardLink (rig_link), publishes the board's 30 Hz state message and every raw
-// frame, and serves the console's command services. All protocol logic lives in rig_link and
-// rig_protocol.
+// frame, serves the console's command services, and says on /diagnostics whether the board is
+// connected or what the link waits for. All protocol logic lives in rig_link and rig_protocol.
+#include <diagnostic_updater/diagnostic_updater.h>
 #include <ros/ros.h>
 #include <std_msgs/Bool.h>
 
@@ -88,6 +89,10 @@ class BoardHost {
     services_.push_back(pnh_.advertiseService("step", &BoardHost::onStep, this));
     ROS_INFO("%s: opening %s at %d baud", program_.c_str(), config_.serial.device.c_str(),
              config_.serial.baud);
+    diag_.setHardwareID(config_.serial.device);
+    diag_.add("board link", this, &BoardHost::diagnose);
+    diag_timer_ = nh_.createWallTimer(ros::WallDuration(0.5),
+                                      [this](const ros::WallTimerEvent&) { diag_.update(); });
     link_->start();
     // Several threads: a long init or step must not block stop/reset from the console.
     ros::AsyncSpinner spinner(3);
@@ -115,7 +120,36 @@ class BoardHost {
     } else {
       ROS_WARN("%s: board link down: %s", program_.c_str(), e.message.c_str());
     }
+    {
+      std::lock_guard<std::mutex> l(diag_mutex_);
+      if (e.type == LinkEvent::kConnected) {
+        ever_connected_ = true;
+      } else if (ever_connected_) {
+        ++drops_;
+      }
+      last_event_ = e.message;
+    }
     publishConnected(e.type == LinkEvent::kConnected);
+  }
+  /// OK while connected; waiting for a board that never answered is a warning, one that went away
+  /// an error. The summary names the port and what the link tried.
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& d) {
+    using S = diagnostic_msgs::DiagnosticStatus;
+    std::lock_guard<std::mutex> l(diag_mutex_);
+    const std::string& port = config_.serial.device;
+    if (link_ && link_->connected()) {
+      d.summary(S::OK, last_event_);
+    } else if (!ever_connected_) {
+      d.summary(S::WARN, "waiting for " + port + (last_event_.empty() ? "" : ": " + last_event_));
+    } else {
+      d.summary(S::ERROR, "waiting for " + port + " to come back: " + last_event_);
+    }
+    const auto st = link_ ? link_->decoderStats() : protocol::DecoderStats{};
+    d.add("port", port);
+    d.add("connected", link_ && link_->connected());
+    d.add("link drops", drops_);
+    d.add("frames", st.frames);
+    d.add("bad CRC", st.bad_crc);
   }
   void onFrame(const protocol::Frame& f, const std::vector<std::uint8_t>& wire, bool outgoing) {
     const ros::Time now = ros::Time::now();
@@ -239,6 +273,12 @@ class BoardHost {
   std::unique_ptr<BoardLink> link_;
   ros::Publisher raw_pub_, connected_pub_;
   std::vector<ros::ServiceServer> services_;
+  diagnostic_updater::Updater diag_;
+  ros::WallTimer diag_timer_;
+  std::mutex diag_mutex_;  ///< guards the three below (link events arrive on the IO thread)
+  bool ever_connected_ = false;
+  unsigned drops_ = 0;
+  std::string last_event_;
   StatePublisher publish_state_;
   StepHandler step_;
 };

@@ -1,14 +1,18 @@
-// rostest: recording exactly as the rig launch files do it. servotrack.launch and
+// rostests: recording exactly as the rig launch files do it (recording.test: a Ctrl-C;
+// recording_fault.test: a disk that fills). servotrack.launch and
 // servotruck.launch include launch/record.launch; this test runs that same file through roslaunch
 // (1 MB splits instead of 1 GB) and stops it with SIGINT to roslaunch, as Ctrl-C does: roslaunch
 // passes SIGINT on to rosbag record. Every bag left behind must open through its index
 // (rosbag::Bag throws on an unindexed bag), no .active file may remain, and the recorded depth
 // frames must be contiguous: nothing lost inside the recording, nothing after the stop.
 #include <dirent.h>
+#include <geometry_msgs/PoseStamped.h>
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
+#include <rosgraph_msgs/Log.h>
+#include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
 #include <signal.h>
 #include <stdlib.h>
@@ -16,10 +20,24 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <string>
 #include <vector>
 
+#include "depth_track/core/tracker.hpp"
+#include "depth_track/ros/conversions.hpp"
+#include "launch_tools.hpp"
 #include "rig_msgs/TrackState.h"
+#include "rig_msgs/TrackingStatus.h"
+
+namespace dt = depth_track;
+namespace dtconv = depth_track::conv;
+using rig_drivers::test::Child;
+using rig_drivers::test::Diagnostics;
+using rig_drivers::test::filesEndingIn;
+using rig_drivers::test::subscribersOf;
+using rig_drivers::test::tempDir;
+using rig_drivers::test::waitUntil;
 
 namespace {
 std::vector<std::string> listDir(const std::string& dir) {
@@ -46,7 +64,8 @@ TEST(Recording, SigintLeavesSplitIndexedBags) {
   const std::string dir = tmpl;
 
   std::string launch_file;
-  ASSERT_TRUE(ros::param::get("~record_launch", launch_file)) << "recording.test sets ~record_launch";
+  ASSERT_TRUE(ros::param::get("~record_launch", launch_file))
+      << "recording.test sets ~record_launch";
   ASSERT_EQ(::access(launch_file.c_str(), R_OK), 0) << launch_file;
   const std::string bag_dir = "bag_dir:=" + dir;  // built before fork: no allocation in the child
   const pid_t pid = ::fork();
@@ -144,10 +163,184 @@ TEST(Recording, SigintLeavesSplitIndexedBags) {
   ::rmdir(dir.c_str());
 }
 
+// A disk that fills mid-run: record.launch through roslaunch with a quota on the bag folder
+// (write_fault.c, preloaded: past 4 MiB every write fails with ENOSPC, as on a full disk), while
+// the rig's depth camera renders poses this test feeds and the tracking graph tracks them.
+// The recorder's stop is reported by name (diagnostics, log), every bag it closed before the
+// fault reads back whole with consecutive frames, and the graph tracks every frame, before and
+// after, exactly as the offline tracker does on the same frames.
+TEST(Recording, DiskFullMidRunReportsAndLeavesClosedBagsWhole) {
+  using S = diagnostic_msgs::DiagnosticStatus;
+  ros::NodeHandle nh;
+  Diagnostics diag;
+  std::mutex m;
+  std::map<ros::Time, sensor_msgs::ImageConstPtr> images;
+  sensor_msgs::CameraInfoConstPtr info;
+  std::map<ros::Time, rig_msgs::TrackingStatus> status;
+  std::vector<rosgraph_msgs::Log> errors;
+  auto s1 =
+      nh.subscribe<sensor_msgs::Image>("/camera/image_rect", 100,
+                                       boost::function<void(const sensor_msgs::ImageConstPtr&)>(
+                                           [&](const sensor_msgs::ImageConstPtr& i) {
+                                             std::lock_guard<std::mutex> l(m);
+                                             images[i->header.stamp] = i;
+                                           }));
+  auto s2 = nh.subscribe<sensor_msgs::CameraInfo>(
+      "/camera/camera_info", 10,
+      boost::function<void(const sensor_msgs::CameraInfoConstPtr&)>(
+          [&](const sensor_msgs::CameraInfoConstPtr& c) {
+            std::lock_guard<std::mutex> l(m);
+            info = c;
+          }));
+  auto s3 = nh.subscribe<rig_msgs::TrackingStatus>(
+      "/status", 100,
+      boost::function<void(const rig_msgs::TrackingStatusConstPtr&)>(
+          [&](const rig_msgs::TrackingStatusConstPtr& st) {
+            std::lock_guard<std::mutex> l(m);
+            status[st->header.stamp] = *st;
+          }));
+  auto s4 = nh.subscribe<rosgraph_msgs::Log>(
+      "/rosout", 100,
+      boost::function<void(const rosgraph_msgs::LogConstPtr&)>(
+          [&](const rosgraph_msgs::LogConstPtr& g) {
+            std::lock_guard<std::mutex> l(m);
+            if (g->name == "/recorder" && g->level >= rosgraph_msgs::Log::ERROR)
+              errors.push_back(*g);
+          }));
+  auto pose_pub = nh.advertise<geometry_msgs::PoseStamped>("/test/camera_pose", 10);
+  ASSERT_TRUE(
+      waitUntil([&] { return pose_pub.getNumSubscribers() > 0 && s3.getNumPublishers() > 0; }, 60))
+      << "the camera or the tracking graph did not come up";
+
+  const std::string root = tempDir("rig_rec_full"), dir = root + "/bags";
+  std::string launch_file;
+  ASSERT_TRUE(ros::param::get("~record_launch", launch_file));
+  Child launch(
+      {"roslaunch", launch_file, "bag_dir:=" + dir, "bag_prefix:=full", "split_size_mb:=1",
+       "min_free_mb:=0", "topics:=/camera/image_rect /camera/camera_info"},
+      {"LD_PRELOAD=" WRITE_FAULT_LIBRARY, "RIG_FAULT_DIR=" + dir, "RIG_FAULT_QUOTA_BYTES=4194304"});
+  ASSERT_TRUE(waitUntil(
+      [&] {
+        const auto subs = subscribersOf("/camera/image_rect");
+        return std::find(subs.begin(), subs.end(), "/recorder_rosbag") != subs.end();
+      },
+      60))
+      << "rosbag record did not subscribe";
+
+  // Frame k: 0.8 m up looking along the world x axis at the chair, 2 mm nearer and 1 mm to the
+  // side per frame; each frame waits for the graph's answer before the next.
+  std::vector<ros::Time> stamps;
+  int fault_at = -1;
+  for (int k = 0; k < 400 && (fault_at < 0 || k < fault_at + 30); ++k) {
+    geometry_msgs::PoseStamped p;
+    p.header.stamp = ros::Time::now();
+    p.header.frame_id = "map";
+    p.pose.position.x = 0.002 * k;
+    p.pose.position.y = 0.001 * k;
+    p.pose.position.z = 0.8;
+    p.pose.orientation.x = -0.5;
+    p.pose.orientation.y = 0.5;
+    p.pose.orientation.z = -0.5;
+    p.pose.orientation.w = 0.5;
+    pose_pub.publish(p);
+    const bool answered = waitUntil(
+        [&] {
+          std::lock_guard<std::mutex> l(m);
+          return status.count(p.header.stamp) > 0;
+        },
+        20);
+    ASSERT_TRUE(answered) << "no tracking status for frame " << k;
+    stamps.push_back(p.header.stamp);
+    if (fault_at < 0 && diag.has("recorder: recording", "not recording into " + dir, S::ERROR))
+      fault_at = k;
+  }
+  ASSERT_GE(fault_at, 0) << "the recorder never stopped: " << diag.describe("recorder: recording");
+  std::printf("the recorder stopped at frame %d: %s\n", fault_at,
+              diag.describe("recorder: recording").c_str());
+  EXPECT_TRUE(launch.stop(30));
+
+  // Said loudly and by name: an error on /rosout naming the folder, the bags and the open one.
+  {
+    std::lock_guard<std::mutex> l(m);
+    bool named = false;
+    for (const auto& g : errors)
+      named = named || (g.msg.find("recording into " + dir + " stopped") != std::string::npos &&
+                        g.msg.find("bags closed and readable") != std::string::npos &&
+                        g.msg.find("was left open and is not indexed") != std::string::npos);
+    EXPECT_TRUE(named) << errors.size() << " errors from /recorder"
+                       << (errors.empty() ? "" : ", the first: " + errors.front().msg);
+  }
+  // Every bag the first recorder closed before the fault reads back whole: full frames,
+  // consecutive, in order. (Its bags share the date of its start; a recorder started again after
+  // the fault names its own.)
+  std::vector<std::string> bags;
+  const auto all_bags = filesEndingIn(dir, ".bag");
+  ASSERT_FALSE(all_bags.empty());
+  const std::string first_run = all_bags.front().substr(0, all_bags.front().rfind('_') + 1);
+  for (const auto& b : all_bags)
+    if (b.rfind(first_run, 0) == 0) bags.push_back(b);
+  const auto left_open = filesEndingIn(dir, ".bag.active");
+  EXPECT_TRUE(std::any_of(left_open.begin(), left_open.end(), [&](const std::string& f) {
+    return f.rfind(first_run, 0) == 0;
+  })) << "the bag open at the fault stays, unindexed";
+  EXPECT_GE(bags.size(), 2u) << "1 MiB splits under a 4 MiB quota";
+  std::vector<ros::Time> recorded;
+  for (const auto& b : bags) {
+    rosbag::Bag bag;
+    ASSERT_NO_THROW(bag.open(dir + "/" + b, rosbag::bagmode::Read)) << b << " is not indexed";
+    for (const auto& msg : rosbag::View(bag, rosbag::TopicQuery("/camera/image_rect"))) {
+      auto im = msg.instantiate<sensor_msgs::Image>();
+      ASSERT_TRUE(im);
+      EXPECT_EQ(im->data.size(), 640u * 480u * 2u);
+      recorded.push_back(im->header.stamp);
+    }
+  }
+  ASSERT_FALSE(recorded.empty());
+  const auto first = std::find(stamps.begin(), stamps.end(), recorded.front());
+  ASSERT_NE(first, stamps.end());
+  ASSERT_LE(static_cast<std::size_t>(stamps.end() - first), stamps.size());
+  for (std::size_t i = 0; i < recorded.size(); ++i)
+    EXPECT_EQ(recorded[i], *(first + static_cast<long>(i))) << "closed bags: frame " << i;
+  std::printf("%zu bags closed before the fault (%zu in all), frames %ld..%ld of %zu\n",
+              bags.size(), all_bags.size(), static_cast<long>(first - stamps.begin()),
+              static_cast<long>(first - stamps.begin()) + static_cast<long>(recorded.size()) - 1,
+              stamps.size());
+  EXPECT_LT(static_cast<long>(first - stamps.begin()) + static_cast<long>(recorded.size()),
+            fault_at + 1);
+
+  // The tracking graph: every frame tracked, the same poses as the offline tracker on the frames.
+  std::lock_guard<std::mutex> l(m);
+  ASSERT_TRUE(info);
+  const dt::PinholeIntrinsics K = dtconv::intrinsicsFromCameraInfo(*info);
+  Eigen::Isometry3d mount = Eigen::Isometry3d::Identity();
+  mount.linear() = Eigen::Quaterniond(0.5, -0.5, 0.5, -0.5).toRotationMatrix();
+  dt::Tracker tracker(K, dt::TrackerConfig{}, mount);
+  double max_dt = 0, max_dr = 0;
+  int tracking = 0;
+  for (const auto& t : stamps) {
+    ASSERT_TRUE(images.count(t)) << "frame " << t << " not seen";
+    const auto& st = status.at(t);
+    tracking += st.state_name == "TRACKING";
+    const auto fs =
+        tracker.track(dtconv::depthFromMsg(*images.at(t), 0.001, dt::DepthRange{}), t.toSec());
+    const Eigen::Isometry3d g = dtconv::fromPoseMsg(st.camera_pose);
+    max_dt = std::max(max_dt, (fs.T_W_C.translation() - g.translation()).norm());
+    max_dr = std::max(max_dr, Eigen::AngleAxisd((fs.T_W_C.inverse() * g).linear()).angle());
+  }
+  std::printf("graph vs offline tracker over %zu frames: %.3g m, %.3g rad; %d tracking\n",
+              stamps.size(), max_dt, max_dr, tracking);
+  EXPECT_EQ(tracking, static_cast<int>(stamps.size()));
+  EXPECT_LT(max_dt, 1e-6);
+  EXPECT_LT(max_dr, 1e-6);
+  std::filesystem::remove_all(root);
+}
+
 int main(int argc, char** argv) {
   testing::InitGoogleTest(&argc, argv);
   ros::init(argc, argv, "test_recording");
   ros::NodeHandle nh;
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
   const int rc = RUN_ALL_TESTS();
   ros::shutdown();
   return rc;
