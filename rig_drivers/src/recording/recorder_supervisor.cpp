@@ -3,6 +3,8 @@
 #include <signal.h>
 #include <sys/wait.h>
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -14,6 +16,16 @@
 namespace rig_drivers {
 
 namespace {
+
+/// A recorder started with less room than a few of rosbag's 768 KiB chunks fails at once.
+constexpr std::uint64_t kStartRoomBytes = 4 * 768 * 1024;
+/// A bag file this small holds its version line and file header only: no message.
+constexpr std::uint64_t kEmptyBagBytes = 13 + 4096;
+
+/// The reserve in bytes: rosbag record reads --min-space=<n>M as n MiB.
+std::uint64_t reserveBytes(const RecorderConfig& c) {
+  return static_cast<std::uint64_t>(c.min_free_mb) * 1024 * 1024;
+}
 
 std::string seconds(double s) {
   char buf[32];
@@ -73,7 +85,7 @@ std::vector<std::string> RecorderConfig::validate() const {
   if (compression != "none" && compression != "lz4" && compression != "bz2")
     p.push_back("compression must be none, lz4 or bz2 (got '" + compression + "')");
   if (min_free_mb < 0 || min_free_mb > 1048576)
-    p.push_back("min_free_mb must be in [0, 1048576] MB");
+    p.push_back("min_free_mb must be in [0, 1048576] MiB");
   if (!(restart_period_s >= 0.1 && restart_period_s <= 3600))
     p.push_back("restart_period_s must be in [0.1, 3600] s");
   if (!(max_restart_period_s >= restart_period_s && max_restart_period_s <= 86400))
@@ -126,7 +138,7 @@ void RecorderSupervisor::forwardOutput() {
   for (const auto& l : lines) {
     if (on_output_) on_output_(l);
     const std::string e = errorMessage(l);
-    if (!e.empty()) last_error_ = e;
+    if (!e.empty() && first_error_.empty()) first_error_ = e;  // the cause; later ones follow it
   }
 }
 
@@ -151,16 +163,20 @@ void RecorderSupervisor::tryStart(double now_s) {
   std::string why;
   if (ensureFolder(dir, &why)) {
     const auto free = freeBytes(dir);
-    const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_mb) * 1000000;
-    if (free && *free < reserve)
+    const std::uint64_t reserve = reserveBytes(config_);
+    if (free && *free < reserve) {
       why = "only " + humanBytes(*free) + " free on the file system of " + dir +
             ", below the reserve of " + std::to_string(config_.min_free_mb) +
-            " MB (min_free_mb): free some space";
+            " MiB (min_free_mb): free some space";
+    } else if (free && *free < kStartRoomBytes) {
+      why =
+          "only " + humanBytes(*free) + " free on the file system of " + dir + ": the disk is full";
+    }
   }
   if (why.empty()) {
     folder_ = folderId(dir);
     closed_at_start_ = status().closed_bags;
-    last_error_.clear();
+    first_error_.clear();
     removed_note_.clear();
     if (!child_.start(recordCommand(config_), &why)) why = "cannot start the recorder: " + why;
   }
@@ -181,7 +197,7 @@ void RecorderSupervisor::tryStart(double now_s) {
                 std::to_string(config_.topics.size()) + " topics into " + dir + "/" +
                 config_.bag_prefix + "_*.bag (a new bag every " +
                 std::to_string(config_.split_size_mb) + " MiB, " + config_.compression +
-                "; the recorder stops below " + std::to_string(config_.min_free_mb) + " MB free)");
+                "; the recorder stops below " + std::to_string(config_.min_free_mb) + " MiB free)");
 }
 
 void RecorderSupervisor::checkFolder(double) {
@@ -200,13 +216,17 @@ void RecorderSupervisor::onExit(int wait_status, double now_s) {
   const RecorderStatus s = status();
   std::string bags = std::to_string(s.closed_bags) + " bags closed and readable in " +
                      config_.bag_dir + " (" + humanBytes(s.closed_bytes) + ")";
-  const BagFiles files = listBags(config_.bag_dir, config_.bag_prefix);
-  for (const auto& b : files.active)
-    if (!contains(known_before_, b.name))
-      bags += "; " + b.name +
-              " was left open and is not indexed: once the disk has room, run "
-              "rosbag reindex " +
-              config_.bag_dir + "/" + b.name;
+  for (const auto& b : listBags(config_.bag_dir, config_.bag_prefix).active) {
+    if (contains(known_before_, b.name) || contains(reported_open_, b.name)) continue;
+    const std::string path = config_.bag_dir + "/" + b.name;
+    if (b.bytes <= kEmptyBagBytes && ::unlink(path.c_str()) == 0) {
+      bags += "; removed " + b.name + " (no message in it)";
+      continue;
+    }
+    reported_open_.push_back(b.name);
+    bags += "; " + b.name + " was left open and is not indexed: once the disk has room, run " +
+            "rosbag reindex " + path;
+  }
   if (state_ == RecorderState::kStopping) {
     state_ = RecorderState::kStopped;
     report(0, "recorder stopped, " + bags);
@@ -217,11 +237,11 @@ void RecorderSupervisor::onExit(int wait_status, double now_s) {
   if (closed_some) period_s_ = config_.restart_period_s;
   next_start_s_ = now_s + period_s_;
   std::string why = "the recorder " + describeExit(wait_status);
-  if (!last_error_.empty()) why += ": " + last_error_;
+  if (!first_error_.empty()) why += ": " + first_error_;
   if (!removed_note_.empty()) why += "; " + removed_note_;
   stopped_reason_ = why;
   const std::string room =
-      config_.min_free_mb > 0 ? " with " + std::to_string(config_.min_free_mb) + " MB free" : "";
+      config_.min_free_mb > 0 ? " with " + std::to_string(config_.min_free_mb) + " MiB free" : "";
   report(2, "recording into " + config_.bag_dir + " stopped: " + why + "; " + bags +
                 "; starting it again in " + seconds(period_s_) + " once the folder is writable" +
                 room);
@@ -262,7 +282,7 @@ RecorderStatus RecorderSupervisor::status() const {
   RecorderStatus s;
   s.state = state_;
   s.starts = starts_;
-  s.last_error = last_error_;
+  s.last_error = first_error_;
   s.free_bytes = freeBytes(config_.bag_dir);
   const BagFiles files = listBags(config_.bag_dir, config_.bag_prefix);
   for (const auto& b : files.closed) {
@@ -287,7 +307,7 @@ RecorderStatus RecorderSupervisor::status() const {
     s.summary = "recording into " + config_.bag_dir + "/" +
                 (newest ? newest->name + " (" + humanBytes(newest->bytes) + ")" : "(opening)") +
                 ", " + std::to_string(s.closed_bags) + " bags closed, " + free;
-    const std::uint64_t reserve = static_cast<std::uint64_t>(config_.min_free_mb) * 1000000;
+    const std::uint64_t reserve = reserveBytes(config_);
     // rosbag record checks its reserve every 20 s: warn while twice the reserve is left.
     s.level = s.free_bytes && *s.free_bytes < 2 * reserve ? 1 : 0;
     if (s.level) s.summary += " (the recorder stops below " + humanBytes(reserve) + ")";

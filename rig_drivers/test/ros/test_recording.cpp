@@ -271,19 +271,26 @@ TEST(Recording, DiskFullMidRunReportsAndLeavesClosedBagsWhole) {
                        << (errors.empty() ? "" : ", the first: " + errors.front().msg);
   }
   // Every bag the first recorder closed before the fault reads back whole: full frames,
-  // consecutive, in order. (Its bags share the date of its start; a recorder started again after
-  // the fault names its own.)
+  // consecutive, in order. rosbag names each split <prefix>_<its date>_<n>, n from 0 for each
+  // recorder, so the first recorder's files are those up to the next _0.
+  std::vector<std::string> files = filesEndingIn(dir, ".bag");
+  for (const auto& f : filesEndingIn(dir, ".bag.active")) files.push_back(f);
+  std::sort(files.begin(), files.end());
   std::vector<std::string> bags;
-  const auto all_bags = filesEndingIn(dir, ".bag");
-  ASSERT_FALSE(all_bags.empty());
-  const std::string first_run = all_bags.front().substr(0, all_bags.front().rfind('_') + 1);
-  for (const auto& b : all_bags)
-    if (b.rfind(first_run, 0) == 0) bags.push_back(b);
-  const auto left_open = filesEndingIn(dir, ".bag.active");
-  EXPECT_TRUE(std::any_of(left_open.begin(), left_open.end(), [&](const std::string& f) {
-    return f.rfind(first_run, 0) == 0;
-  })) << "the bag open at the fault stays, unindexed";
-  EXPECT_GE(bags.size(), 2u) << "1 MiB splits under a 4 MiB quota";
+  bool left_open = false;
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    const bool starts_run = files[i].find("_0.bag") != std::string::npos;
+    if (i > 0 && starts_run) break;
+    if (files[i].size() > 4 && files[i].compare(files[i].size() - 4, 4, ".bag") == 0) {
+      bags.push_back(files[i]);
+    } else {
+      left_open = true;
+    }
+  }
+  std::string listing;
+  for (const auto& f : files) listing += " " + f;
+  EXPECT_TRUE(left_open) << "the bag open at the fault stays, unindexed; the folder:" << listing;
+  EXPECT_GE(bags.size(), 2u) << "1 MiB splits under a 4 MiB quota; the folder:" << listing;
   std::vector<ros::Time> recorded;
   for (const auto& b : bags) {
     rosbag::Bag bag;
@@ -301,8 +308,8 @@ TEST(Recording, DiskFullMidRunReportsAndLeavesClosedBagsWhole) {
   ASSERT_LE(static_cast<std::size_t>(stamps.end() - first), stamps.size());
   for (std::size_t i = 0; i < recorded.size(); ++i)
     EXPECT_EQ(recorded[i], *(first + static_cast<long>(i))) << "closed bags: frame " << i;
-  std::printf("%zu bags closed before the fault (%zu in all), frames %ld..%ld of %zu\n",
-              bags.size(), all_bags.size(), static_cast<long>(first - stamps.begin()),
+  std::printf("%zu bags closed before the fault (%zu files in all), frames %ld..%ld of %zu\n",
+              bags.size(), files.size(), static_cast<long>(first - stamps.begin()),
               static_cast<long>(first - stamps.begin()) + static_cast<long>(recorded.size()) - 1,
               stamps.size());
   EXPECT_LT(static_cast<long>(first - stamps.begin()) + static_cast<long>(recorded.size()),

@@ -2,8 +2,9 @@
 /// Keeps a recorder (rosbag record) running into the rig's bag folder (ROS-free): creates the
 /// folder, starts the recorder only when the folder is writable and has its reserve free, reads
 /// the recorder's error lines, and when it stops on its own (disk full, folder removed, no
-/// permission, a crash) says so by name, with the bags it closed and any it left unindexed, then
-/// starts it again once the folder allows. Drivers and the tracking graph never depend on it.
+/// permission, a crash) says so by name, with the bags it closed and any it left unindexed (one
+/// without a message in it is removed), then starts it again once the folder allows. Drivers and
+/// the tracking graph never depend on it.
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -99,7 +100,8 @@ class RecorderSupervisor {
   std::optional<FolderId> folder_;
   std::string folder_problem_;  ///< why the folder cannot be recorded into (empty = it can)
   std::string stopped_reason_;  ///< why the recorder stopped on its own (until it runs again)
-  std::string last_error_;
+  std::string first_error_;     ///< the current recorder's first error line: the cause
+  std::vector<std::string> reported_open_;  ///< .active files already named in a report
   std::string removed_note_;  ///< set when the folder vanished under a running recorder
   double next_start_s_ = -1e300;
   double next_check_s_ = -1e300;
