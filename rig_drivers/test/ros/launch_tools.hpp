@@ -4,6 +4,8 @@
 // nodes pinged through their XML-RPC, bags read back through their index.
 #include <diagnostic_msgs/DiagnosticArray.h>
 #include <dirent.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <gtest/gtest.h>
 #include <ros/master.h>
 #include <ros/network.h>
 #include <ros/ros.h>
@@ -180,6 +182,34 @@ inline std::string tempDir(const char* stem) {
   buf.push_back('\0');
   const char* d = ::mkdtemp(buf.data());
   return d ? d : "/tmp";
+}
+
+/// The sim camera's pose (T_W_C, its optical frame in the map) 0.8 m up in the chair room,
+/// looking along the world x axis at the chair, moved by (x_m, y_m).
+inline geometry_msgs::PoseStamped chairViewPose(const ros::Time& stamp, double x_m, double y_m) {
+  geometry_msgs::PoseStamped p;
+  p.header.stamp = stamp;
+  p.header.frame_id = "map";
+  p.pose.position.x = x_m;
+  p.pose.position.y = y_m;
+  p.pose.position.z = 0.8;
+  p.pose.orientation.x = -0.5;  // optical z = world x, x = -y, y = -z
+  p.pose.orientation.y = 0.5;
+  p.pose.orientation.z = -0.5;
+  p.pose.orientation.w = 0.5;
+  return p;
+}
+
+/// main() of a rostest node: gtest, ROS with two spinner threads, shutdown before returning.
+inline int rostestMain(int argc, char** argv, const char* node_name) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, node_name);
+  ros::NodeHandle nh;
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  const int rc = RUN_ALL_TESTS();
+  ros::shutdown();
+  return rc;
 }
 
 }  // namespace rig_drivers::test

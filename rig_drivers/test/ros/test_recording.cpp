@@ -232,16 +232,7 @@ TEST(Recording, DiskFullMidRunReportsAndLeavesClosedBagsWhole) {
   std::vector<ros::Time> stamps;
   int fault_at = -1;
   for (int k = 0; k < 400 && (fault_at < 0 || k < fault_at + 30); ++k) {
-    geometry_msgs::PoseStamped p;
-    p.header.stamp = ros::Time::now();
-    p.header.frame_id = "map";
-    p.pose.position.x = 0.002 * k;
-    p.pose.position.y = 0.001 * k;
-    p.pose.position.z = 0.8;
-    p.pose.orientation.x = -0.5;
-    p.pose.orientation.y = 0.5;
-    p.pose.orientation.z = -0.5;
-    p.pose.orientation.w = 0.5;
+    const auto p = rig_drivers::test::chairViewPose(ros::Time::now(), 0.002 * k, 0.001 * k);
     pose_pub.publish(p);
     const bool answered = waitUntil(
         [&] {
@@ -343,12 +334,5 @@ TEST(Recording, DiskFullMidRunReportsAndLeavesClosedBagsWhole) {
 }
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "test_recording");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  ros::shutdown();
-  return rc;
+  return rig_drivers::test::rostestMain(argc, argv, "test_recording");
 }

@@ -208,16 +208,7 @@ TEST(RigLaunch, NoDevicesEveryNodeWaitsAndTheCameraComesBack) {
   auto stampOf = [&](int k) { return T0 + ros::Duration(k / 30.0); };
   // Frame k: the pose 0.8 m up looking at the chair, moving 2 mm along the view per frame.
   auto feed = [&](int k) {
-    geometry_msgs::PoseStamped p;
-    p.header.stamp = stampOf(k);
-    p.header.frame_id = "map";
-    p.pose.position.x = 0.002 * k;
-    p.pose.position.z = 0.8;
-    p.pose.orientation.x = -0.5;
-    p.pose.orientation.y = 0.5;
-    p.pose.orientation.z = -0.5;
-    p.pose.orientation.w = 0.5;
-    pose_pub.publish(p);
+    pose_pub.publish(chairViewPose(stampOf(k), 0.002 * k, 0.0));
     return waitUntil(
         [&] {
           std::lock_guard<std::mutex> l(m);
@@ -256,13 +247,4 @@ TEST(RigLaunch, NoDevicesEveryNodeWaitsAndTheCameraComesBack) {
   std::filesystem::remove_all(tmp);
 }
 
-int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "test_rig_launch");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  ros::shutdown();
-  return rc;
-}
+int main(int argc, char** argv) { return rostestMain(argc, argv, "test_rig_launch"); }

@@ -71,25 +71,17 @@ static int isTracked(FILE* f) {
   return 0;
 }
 
-FILE* fopen(const char* path, const char* mode) {
-  static FILE* (*real)(const char*, const char*);
-  FILE* f;
-  if (!real)
-    real = reinterpret_cast<FILE* (*)(const char*, const char*)>(dlsym(RTLD_NEXT, "fopen"));
-  f = real(path, mode);
+/* stdio's own open (`symbol`), the file tracked when it is written under the folder. */
+static FILE* openTracked(const char* symbol, const char* path, const char* mode) {
+  using Open = FILE* (*)(const char*, const char*);
+  FILE* f = reinterpret_cast<Open>(dlsym(RTLD_NEXT, symbol))(path, mode);
   track(f, path, mode);
   return f;
 }
 
-FILE* fopen64(const char* path, const char* mode) {
-  static FILE* (*real)(const char*, const char*);
-  FILE* f;
-  if (!real)
-    real = reinterpret_cast<FILE* (*)(const char*, const char*)>(dlsym(RTLD_NEXT, "fopen64"));
-  f = real(path, mode);
-  track(f, path, mode);
-  return f;
-}
+FILE* fopen(const char* path, const char* mode) { return openTracked("fopen", path, mode); }
+
+FILE* fopen64(const char* path, const char* mode) { return openTracked("fopen64", path, mode); }
 
 size_t fwrite(const void* ptr, size_t size, size_t n, FILE* f) {
   static size_t (*real)(const void*, size_t, size_t, FILE*);
