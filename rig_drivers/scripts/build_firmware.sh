@@ -67,6 +67,7 @@ limits() {
 section() { avr-size -A "$1" | awk -v s="$2" '$1 == s { print $2; found = 1 } END { if (!found) print 0 }'; }
 
 fail=0
+rm -f "$OUT/sizes.txt"  # written only when every image fits (a build target's output)
 {
   printf '%-24s %-11s %8s %8s %6s %6s %6s %6s\n' image mcu flash_B limit_B flash% ram_B sram_B ram%
   for elf in "$OUT"/*.elf; do
@@ -91,6 +92,7 @@ fail=0
       fail=1
     fi
   done
-} >"$OUT/sizes.txt"
-cat "$OUT/sizes.txt"
+} >"$OUT/sizes.txt.tmp"
+cat "$OUT/sizes.txt.tmp"
+[ "$fail" = 0 ] && mv "$OUT/sizes.txt.tmp" "$OUT/sizes.txt"
 exit $fail

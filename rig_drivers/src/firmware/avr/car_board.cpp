@@ -10,6 +10,7 @@
 // I2C: both pots then read kStubAdcCounts (mid-rail, about 0 deg), the accelerometer 1 g straight
 // down the camera's y axis, and the ranger kStubTofMm. The servo commands still go out on USART1.
 #include "avr_io.hpp"
+#include "board.hpp"
 #include "rig_drivers/firmware/car_drv.hpp"
 
 namespace rp = rig_drivers::protocol;

@@ -14,6 +14,7 @@
 #include <util/delay.h>
 
 #include "avr_io.hpp"
+#include "board.hpp"
 #include "rig_drivers/firmware/track_drv.hpp"
 
 namespace rp = rig_drivers::protocol;

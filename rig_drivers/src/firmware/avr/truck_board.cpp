@@ -4,7 +4,8 @@
 //
 // The host link is the Leonardo's hardware USART (pins 0 RX / 1 TX, Arduino's Serial1), reached
 // through a 5 V USB-serial adapter: the chip's own USB port needs a USB device stack, which
-// avr-libc does not have (TruckDRV.ino, built with the Arduino IDE, speaks on USB instead).
+// avr-libc does not have. The three truckLink* functions are weak: TruckDRV.ino, built with the
+// Arduino IDE, replaces them with the Arduino core's USB serial and keeps everything else.
 //
 // Pins (Arduino numbering): receiver CH2 on 2 (INT1), CH3 on 3 (INT0), CH5 on 7 (INT6), CH7 on 8
 // (pin change); motor PWM on 11 (Timer0, 976 Hz), motor direction on 10, steering servo on 5
@@ -16,9 +17,18 @@
 #include <avr/interrupt.h>
 
 #include "avr_io.hpp"
+#include "board.hpp"
 #include "rig_drivers/firmware/truck_drv.hpp"
 
+#if !RIG_EMULATED_INPUTS && !defined(__AVR_ATmega32U4__)
+#error "truck_board.cpp drives a Leonardo (ATmega32u4); other chips only with RIG_EMULATED_INPUTS"
+#endif
+
 namespace rp = rig_drivers::protocol;
+
+void truckLinkBegin(uint32_t baud);
+size_t truckLinkRead(uint8_t* out, size_t max);
+void truckLinkWrite(const uint8_t* data, size_t n);
 
 namespace {
 
@@ -26,6 +36,7 @@ namespace {
 
 constexpr uint16_t kStubPulseUs[4] = {1500, 1500, 1000, 1000};  // CH2, CH3, CH5, CH7
 rig_avr::Uart& link() { return rig_avr::uart0(); }
+void disableUsb() {}
 void hardwareBegin() {}
 uint16_t pulseWidthUs(int ch) { return kStubPulseUs[ch]; }
 void writeMotor(double) {}
@@ -54,10 +65,13 @@ const rig_avr::Pin kMotorPwm{&PINB, _BV(PB7)};  // 11, OC0A
 const rig_avr::Pin kMotorDir{&PINB, _BV(PB6)};  // 10
 const rig_avr::Pin kSteering{&PINC, _BV(PC6)};  // 5, OC3A
 
-void hardwareBegin() {
+void disableUsb() {
   // The bootloader may leave the USB controller running; its interrupts have no handler here.
   USBCON = 0;
   UDIEN = 0;
+}
+
+void hardwareBegin() {
   const rig_avr::Pin inputs[4] = {{&PIND, _BV(PD1)}, {&PIND, _BV(PD0)}, {&PINE, _BV(PE6)},
                                   {&PINB, _BV(PB4)}};
   for (const auto& p : inputs) p.input();
@@ -96,12 +110,25 @@ void writeSteering(double c) { OCR3A = static_cast<uint16_t>((1500 + 500 * c) * 
 
 #endif
 
+}  // namespace
+
+__attribute__((weak)) void truckLinkBegin(uint32_t baud) {
+  disableUsb();
+  link().begin(baud);
+}
+__attribute__((weak)) size_t truckLinkRead(uint8_t* out, size_t max) {
+  return link().read(out, max);
+}
+__attribute__((weak)) void truckLinkWrite(const uint8_t* data, size_t n) { link().write(data, n); }
+
+namespace {
+
 class TruckBoardHardware : public rp::TruckHardware {
  public:
   uint16_t pulseUs(rp::RcChannel ch) override { return pulseWidthUs(static_cast<int>(ch)); }
   void setMotor(double command) override { writeMotor(command); }
   void setSteering(double command) override { writeSteering(command); }
-  void write(const uint8_t* data, size_t n) override { link().write(data, n); }
+  void write(const uint8_t* data, size_t n) override { truckLinkWrite(data, n); }
 };
 
 TruckBoardHardware g_hw;
@@ -119,13 +146,13 @@ ISR(PCINT0_vect) { edge(3, PINB & _BV(PB4)); }
 void boardSetup() {
   if (g_board.config().problems() != 0) rig_avr::halt(3);
   hardwareBegin();
-  link().begin(rp::kBaudRate);
+  truckLinkBegin(rp::kBaudRate);
   rig_avr::clockBegin();
 }
 
 void boardLoop() {
   uint8_t buf[32];
-  const size_t n = link().read(buf, sizeof buf);
+  const size_t n = truckLinkRead(buf, sizeof buf);
   if (n > 0) g_board.receive(buf, n);
   g_board.update(rig_avr::micros());
 }
