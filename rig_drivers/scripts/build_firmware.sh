@@ -2,7 +2,7 @@
 # Builds the rig boards' firmware with Debian's AVR toolchain (gcc-avr, avr-libc, binutils-avr)
 # and checks each image against its board:
 #
-#   rig_drivers/scripts/build_firmware.sh <outdir>
+#   rig_drivers/scripts/build_firmware.sh <outdir> [<objdir>]   (objects: <outdir>/obj by default)
 #
 # Images (ELF and Intel HEX in <outdir>):
 #   track_drv_mega2560       TrackDRV, Arduino Mega 2560 (ATmega2560)
@@ -18,9 +18,10 @@
 # files the host build compiles, and the AVR adapters in src/firmware/avr/.
 set -euo pipefail
 
-OUT=${1:?usage: build_firmware.sh <outdir>}
+OUT=${1:?usage: build_firmware.sh <outdir> [<objdir>]}
+OBJ=${2:-$OUT/obj}
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"  # rig_drivers/
-mkdir -p "$OUT/obj"
+mkdir -p "$OUT" "$OBJ"
 OUT="$(cd "$OUT" && pwd)"
 
 CXX=${AVR_CXX:-avr-g++}
@@ -40,7 +41,7 @@ LOGIC=(protocol/codec.cpp firmware/firmware.cpp)
 build() {
   local image=$1 mcu=$2 board=$3 logic=$4 emu=$5 objs=() s o
   for s in "${LOGIC[@]}" "firmware/$logic" "firmware/avr/avr_io.cpp" "firmware/avr/$board"; do
-    o="$OUT/obj/$mcu-$emu-$(basename "$s" .cpp).o"
+    o="$OBJ/$mcu-$emu-$(basename "$s" .cpp).o"
     "${LAUNCHER[@]}" "$CXX" -mmcu="$mcu" "${CXXFLAGS[@]}" -DRIG_EMULATED_INPUTS="$emu" \
       -c "$HERE/src/$s" -o "$o"
     objs+=("$o")

@@ -130,10 +130,15 @@ def start_qemu(qemu, elf, sock_path, log):
     raise RuntimeError("%s did not open its serial socket" % qemu)
 
 
-def relay(sock, master, tap, qemu_proc, stop):
+def relay(sock, master, tap, qemu_proc, stop, baud):
+    """Moves bytes both ways until qemu exits or `stop` is set. Host bytes reach the board no
+    faster than the line's baud rate (10 bits a byte): the emulated USART has no baud timing, and
+    a burst at memory speed would overrun any board's receive buffer where the wire never could."""
     to_host = BoardToHost(tap)
+    to_board = bytearray()
+    budget, last = 0.0, time.monotonic()
     while not stop.is_set() and qemu_proc.poll() is None:
-        r, _, _ = select.select([sock, master], [], [], 0.1)
+        r, _, _ = select.select([sock, master], [], [], 0.001 if to_board else 0.1)
         if sock in r:
             data = sock.recv(4096)
             if not data:
@@ -141,21 +146,22 @@ def relay(sock, master, tap, qemu_proc, stop):
             write_all(master, to_host.process(data))
         if master in r:
             try:
-                data = os.read(master, 4096)
+                to_board += os.read(master, 4096)
             except OSError:
-                data = b""
-            if data:
-                with tap.lock:
-                    if tap.garbage_to_board:
-                        data = tap.garbage() + data
-                        tap.garbage_to_board = False
-                        tap.applied()
-                sock.sendall(data)
-        elif tap.garbage_to_board:
-            with tap.lock:
-                sock.sendall(tap.garbage())
+                pass
+        with tap.lock:
+            if tap.garbage_to_board:
+                to_board = bytearray(tap.garbage()) + to_board
                 tap.garbage_to_board = False
                 tap.applied()
+        now = time.monotonic()
+        budget = min(budget + (now - last) * baud / 10.0, 64.0) if to_board else 0.0
+        last = now
+        n = int(budget)
+        if n > 0:
+            sock.sendall(bytes(to_board[:n]))
+            del to_board[:n]
+            budget -= n
 
 
 def serve_ros(tap):
@@ -205,6 +211,7 @@ def main():
     p.add_argument("--link", required=True, help="symlink to create for the pseudo-terminal")
     p.add_argument("--qemu", default="qemu-system-avr")
     p.add_argument("--garbage-bytes", type=int, default=100)
+    p.add_argument("--baud", type=int, default=115200, help="pace of the host's bytes to the board")
     p.add_argument("--log", help="qemu's output (default: a file beside the link)")
     args = p.parse_args(argv)
 
@@ -238,7 +245,7 @@ def main():
                   lambda *_: threading.Thread(target=tap.arm, args=("garbage_to_host",)).start())
     services = serve_ros(tap) if under_roslaunch else []
     try:
-        relay(sock, master, tap, qemu_proc, stop)
+        relay(sock, master, tap, qemu_proc, stop, args.baud)
     finally:
         for s in services:
             s.shutdown()

@@ -63,11 +63,12 @@ int16_t clampI16(double v) {
 }  // namespace
 
 CarDrv::CarDrv(const CarDrvConfig& config, CarHardware& hw)
-    : FirmwareBoard(BoardId::kCar, "CarDRV", hw), config_(requireValid(config, "CarDrvConfig")), hw_(hw) {}
+    : FirmwareBoard(BoardId::kCar, "CarDRV", hw),
+      config_(requireValid(config, "CarDrvConfig")),
+      hw_(hw) {}
 
 double CarDrv::demand(double pitch_deg, double yaw_deg) {
-  const double slew =
-      fmax(fabs(pitch_deg - dem_deg_[0]), fabs(yaw_deg - dem_deg_[1]));
+  const double slew = fmax(fabs(pitch_deg - dem_deg_[0]), fabs(yaw_deg - dem_deg_[1]));
   dem_deg_[0] = pitch_deg;
   dem_deg_[1] = yaw_deg;
   hw_.setServoPulse(GimbalAxis::kPitch, config_.pitch.pulse_us_of_deg(pitch_deg));

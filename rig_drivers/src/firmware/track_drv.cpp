@@ -262,8 +262,7 @@ bool TrackDrv::handleCommand(const Frame& f) {
           state_ = TrackStateCode::kHoming;
           motion_ = Motion::kHoming;
           home_travel_steps_ = 0;
-          const int32_t search =
-              static_cast<int32_t>(lround(config_.home_search_m / m_per_step_));
+          const int32_t search = static_cast<int32_t>(lround(config_.home_search_m / m_per_step_));
           startProfile(pos_steps_ - search, config_.home_speed_mps / m_per_step_,
                        config_.home_accel_mps2 / m_per_step_);
         }

@@ -29,7 +29,9 @@ uint32_t TruckDrvConfig::problems() const {
 }
 
 TruckDrv::TruckDrv(const TruckDrvConfig& config, TruckHardware& hw)
-    : FirmwareBoard(BoardId::kTruck, "TruckDRV", hw), config_(requireValid(config, "TruckDrvConfig")), hw_(hw) {}
+    : FirmwareBoard(BoardId::kTruck, "TruckDRV", hw),
+      config_(requireValid(config, "TruckDrvConfig")),
+      hw_(hw) {}
 
 double TruckDrv::normalise(uint16_t pulse_us, bool reversed) const {
   if (!valid(pulse_us)) return 0.0;

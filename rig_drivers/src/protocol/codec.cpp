@@ -386,6 +386,15 @@ void StreamDecoder::process(FrameSink& sink) {
   flushGarbage();
 }
 
+void StreamDecoder::expire(FrameSink& sink) {
+  while (len_ > 0) {
+    ++stats_.truncated;
+    drop(1);
+    sink.onError(DecodeError::kTruncated, 1);
+    process(sink);
+  }
+}
+
 void StreamDecoder::flush(FrameSink& sink) {
   if (len_ == 0) return;
   const size_t n = len_;

@@ -6,8 +6,8 @@
 // Nothing here includes Arduino headers or the C++ standard library: a board's hardware adapter
 // (src/firmware/avr/ for avr-libc builds, the .ino sketches for the Arduino IDE) calls
 //   board.receive(bytes, n);  board.update(micros());
-// from its loop. The host simulator and the tests do exactly the same with an injected clock, so one
-// code path runs on the bench and in simulation. Not thread-safe: one thread drives a board.
+// from its loop. The host simulator and the tests do exactly the same with an injected clock, so
+// one code path runs on the bench and in simulation. Not thread-safe: one thread drives a board.
 //
 // Board configs are checked by problems() (one bit per problem, 0 when valid), which runs on the
 // board; the host's validate() turns the bits into text (config_text.cpp), and on the host a
@@ -139,6 +139,11 @@ class FirmwareBoard : public FrameSink {
 
   /// Feeds bytes received on the serial port; commands are handled at once.
   void receive(const uint8_t* data, size_t n);
+  /// The host's line has been quiet for a while (the adapter's judgement): a frame still pending
+  /// can never complete; complete commands buffered behind a false frame start are handled now.
+  void lineIdle() { decoder_.expire(*this); }
+  /// Received bytes of a frame not yet complete.
+  size_t rxPending() const { return decoder_.pending(); }
   /// Runs the board's control logic at raw microsecond counter `now_us` (call often: every loop()).
   void update(uint32_t now_us);
 

@@ -118,8 +118,7 @@ struct Frame {
 size_t encodeFrame(BoardId board, MsgId id, uint32_t seq, const uint8_t* payload,
                    size_t payload_len, uint8_t* out, size_t cap);
 
-// ---- little-endian field helpers used by the payload structs
-// -------------------------------------
+// ---- little-endian field helpers used by the payload structs ------------------------------------
 namespace wire {
 inline void putU8(uint8_t*& p, uint8_t v) { *p++ = v; }
 inline void putU16(uint8_t*& p, uint16_t v) {
@@ -387,6 +386,11 @@ class StreamDecoder {
   void feed(const uint8_t* data, size_t n, FrameSink& sink);
   /// Reports kTruncated if a partial frame is pending (e.g. the port closed) and clears it.
   void flush(FrameSink& sink);
+  /// The line has gone quiet, so a pending candidate can never complete (garbage that looked like
+  /// a frame start, with a length reaching past what arrived). Gives up candidate starts one byte
+  /// at a time (each reported as kTruncated) and rescans, so every complete frame still buffered
+  /// is delivered. Leaves nothing pending.
+  void expire(FrameSink& sink);
   /// Drops any partial frame without reporting (e.g. after reopening a port).
   void reset() { len_ = 0; }
   /// Bytes of a partial frame currently buffered.
@@ -404,7 +408,7 @@ class StreamDecoder {
 };
 
 #if RIG_DRIVERS_HOST
-// ---- host conveniences (codec_host.cpp) ------------------------------------------------------------
+// ---- host conveniences (codec_host.cpp) ---------------------------------------------------------
 
 /// Short name of a message id ("TrackState", ...), "unknown" otherwise.
 const char* msgName(MsgId id);

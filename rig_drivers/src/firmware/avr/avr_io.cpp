@@ -6,7 +6,7 @@
 
 namespace rig_avr {
 
-// ---- clock ---------------------------------------------------------------------------------------
+// ---- clock --------------------------------------------------------------------------------------
 
 namespace {
 volatile uint32_t g_overflows = 0;  // Timer1 overflows since clockBegin (one per 32.768 ms)
@@ -62,7 +62,7 @@ uint32_t micros() {
   return us;
 }
 
-// ---- USART ---------------------------------------------------------------------------------------
+// ---- USART --------------------------------------------------------------------------------------
 
 namespace {
 // Bit positions, the same in every USART of both chips (the headers name them per USART).
@@ -136,7 +136,7 @@ Uart& uart1() { return g_uart1; }
 ISR(USART1_RX_vect) { g_uart1.onReceive(); }
 ISR(USART1_UDRE_vect) { g_uart1.onDataRegisterEmpty(); }
 
-// ---- ADC -----------------------------------------------------------------------------------------
+// ---- ADC ----------------------------------------------------------------------------------------
 
 uint16_t adcRead(uint8_t channel) {
   ADCSRA = _BV(ADEN) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);  // 125 kHz ADC clock
@@ -154,7 +154,7 @@ uint16_t adcRead(uint8_t channel) {
   return ADC;
 }
 
-// ---- TWI (I2C) -----------------------------------------------------------------------------------
+// ---- TWI (I2C) ----------------------------------------------------------------------------------
 
 namespace {
 constexpr uint16_t kTwiSpins = 4000;  // ~1 ms at 16 MHz: far longer than one byte at 400 kHz
@@ -190,9 +190,8 @@ bool twiWrite(uint8_t address, uint8_t reg, const uint8_t* data, uint8_t n) {
 }
 
 bool twiRead(uint8_t address, uint8_t reg, uint8_t* out, uint8_t n) {
-  bool ok = twiStart() && twiSend(static_cast<uint8_t>(address << 1), 0x18) &&
-            twiSend(reg, 0x28) && twiStart() &&
-            twiSend(static_cast<uint8_t>((address << 1) | 1), 0x40);
+  bool ok = twiStart() && twiSend(static_cast<uint8_t>(address << 1), 0x18) && twiSend(reg, 0x28) &&
+            twiStart() && twiSend(static_cast<uint8_t>((address << 1) | 1), 0x40);
   for (uint8_t i = 0; ok && i < n; ++i) {
     const bool last = i + 1 == n;
     TWCR = _BV(TWINT) | _BV(TWEN) | (last ? 0 : _BV(TWEA));
@@ -203,7 +202,7 @@ bool twiRead(uint8_t address, uint8_t reg, uint8_t* out, uint8_t n) {
   return ok;
 }
 
-// ---- halt ----------------------------------------------------------------------------------------
+// ---- halt ---------------------------------------------------------------------------------------
 
 void halt(uint8_t blinks) {
   cli();

@@ -27,8 +27,10 @@ uint32_t ticksInIsr();
 /// soon as the bytes are queued and blocks only while the transmit ring is full.
 class Uart {
  public:
-  static constexpr uint8_t kRxSize = 64;   ///< a power of two
-  static constexpr uint8_t kTxSize = 128;  ///< a power of two
+  // Powers of two. 128 received bytes are 11 ms of the line at 115200 baud: the loop may stall
+  // that long (e.g. writing para's frames into a full transmit ring) without losing a command.
+  static constexpr uint8_t kRxSize = 128;
+  static constexpr uint8_t kTxSize = 128;
 
   struct Registers {
     volatile uint8_t* ucsra;

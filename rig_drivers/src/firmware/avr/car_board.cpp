@@ -88,6 +88,8 @@ class MegaCarHardware : public rp::CarHardware {
 MegaCarHardware g_hw(rig_avr::uart0(), rig_avr::uart1());
 rp::CarDrv g_board(rp::CarDrvConfig::defaults(), g_hw);  // put the rig's B2/B3 tables here
 
+rig_avr::LoopPass g_loop;
+
 }  // namespace
 
 void boardSetup() {
@@ -98,10 +100,9 @@ void boardSetup() {
 }
 
 void boardLoop() {
-  uint8_t buf[32];
-  const size_t n = rig_avr::uart0().read(buf, sizeof buf);
-  if (n > 0) g_board.receive(buf, n);
-  g_board.update(rig_avr::micros());
+  g_loop.run(
+      g_board, [](uint8_t* buf, size_t max) { return rig_avr::uart0().read(buf, max); },
+      rig_avr::micros());
 }
 
 #if !defined(ARDUINO)

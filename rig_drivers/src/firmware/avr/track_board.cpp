@@ -21,12 +21,12 @@ namespace rp = rig_drivers::protocol;
 
 namespace {
 
-const rig_avr::Pin kStep{&PINF, _BV(PF0)};     // A0
-const rig_avr::Pin kDir{&PINF, _BV(PF1)};      // A1
-const rig_avr::Pin kEnable{&PIND, _BV(PD7)};   // 38
-const rig_avr::Pin kFar{&PINE, _BV(PE5)};      // 3
-const rig_avr::Pin kNear{&PINE, _BV(PE4)};     // 2
-const rig_avr::Pin kEStop{&PIND, _BV(PD3)};    // 18
+const rig_avr::Pin kStep{&PINF, _BV(PF0)};    // A0
+const rig_avr::Pin kDir{&PINF, _BV(PF1)};     // A1
+const rig_avr::Pin kEnable{&PIND, _BV(PD7)};  // 38
+const rig_avr::Pin kFar{&PINE, _BV(PE5)};     // 3
+const rig_avr::Pin kNear{&PINE, _BV(PE4)};    // 2
+const rig_avr::Pin kEStop{&PIND, _BV(PD3)};   // 18
 
 #if RIG_EMULATED_INPUTS
 constexpr int32_t kStubStartSteps = 1000;  // 18.6 mm from the far sensor with the 20-tooth pulley
@@ -77,6 +77,8 @@ class MegaTrackHardware : public rp::TrackHardware {
 MegaTrackHardware g_hw(rig_avr::uart0());
 rp::TrackDrv g_board(rp::TrackDrvConfig(), g_hw);  // 20-tooth pulley, 0.0186 mm/step
 
+rig_avr::LoopPass g_loop;
+
 }  // namespace
 
 void boardSetup() {
@@ -88,10 +90,9 @@ void boardSetup() {
 }
 
 void boardLoop() {
-  uint8_t buf[32];
-  const size_t n = rig_avr::uart0().read(buf, sizeof buf);
-  if (n > 0) g_board.receive(buf, n);
-  g_board.update(rig_avr::micros());
+  g_loop.run(
+      g_board, [](uint8_t* buf, size_t max) { return rig_avr::uart0().read(buf, max); },
+      rig_avr::micros());
 }
 
 #if !defined(ARDUINO)

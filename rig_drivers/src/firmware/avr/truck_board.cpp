@@ -72,8 +72,8 @@ void disableUsb() {
 }
 
 void hardwareBegin() {
-  const rig_avr::Pin inputs[4] = {{&PIND, _BV(PD1)}, {&PIND, _BV(PD0)}, {&PINE, _BV(PE6)},
-                                  {&PINB, _BV(PB4)}};
+  const rig_avr::Pin inputs[4] = {
+      {&PIND, _BV(PD1)}, {&PIND, _BV(PD0)}, {&PINE, _BV(PE6)}, {&PINB, _BV(PB4)}};
   for (const auto& p : inputs) p.input();
   EICRA = _BV(ISC10) | _BV(ISC00);  // INT1 (CH2), INT0 (CH3): any edge
   EICRB = _BV(ISC60);               // INT6 (CH5): any edge
@@ -86,10 +86,10 @@ void hardwareBegin() {
   TCCR0A = _BV(COM0A1) | _BV(WGM01) | _BV(WGM00);  // fast PWM on OC0A
   TCCR0B = _BV(CS01) | _BV(CS00);                  // F_CPU / 64 / 256 = 976 Hz
   OCR0A = 0;
-  ICR3 = 39999;                                     // 20 ms at 0.5 us
-  OCR3A = 3000;                                     // 1500 us: straight ahead
-  TCCR3A = _BV(COM3A1) | _BV(WGM31);                // fast PWM, TOP = ICR3
-  TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS31);     // F_CPU / 8
+  ICR3 = 39999;                                  // 20 ms at 0.5 us
+  OCR3A = 3000;                                  // 1500 us: straight ahead
+  TCCR3A = _BV(COM3A1) | _BV(WGM31);             // fast PWM, TOP = ICR3
+  TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS31);  // F_CPU / 8
 }
 
 uint16_t pulseWidthUs(int ch) {
@@ -133,6 +133,7 @@ class TruckBoardHardware : public rp::TruckHardware {
 
 TruckBoardHardware g_hw;
 rp::TruckDrv g_board(rp::TruckDrvConfig::defaults(), g_hw);  // fig. 5.42 curve in defaults()
+rig_avr::LoopPass g_loop;
 
 }  // namespace
 
@@ -151,10 +152,8 @@ void boardSetup() {
 }
 
 void boardLoop() {
-  uint8_t buf[32];
-  const size_t n = truckLinkRead(buf, sizeof buf);
-  if (n > 0) g_board.receive(buf, n);
-  g_board.update(rig_avr::micros());
+  g_loop.run(
+      g_board, [](uint8_t* buf, size_t max) { return truckLinkRead(buf, max); }, rig_avr::micros());
 }
 
 #if !defined(ARDUINO)
