@@ -8,7 +8,8 @@
 //
 // RIG_EMULATED_INPUTS=1 builds the image for qemu-system-avr, which emulates neither the ADC nor
 // I2C: both pots then read kStubAdcCounts (mid-rail, about 0 deg), the accelerometer 1 g straight
-// down the camera's y axis, and the ranger kStubTofMm. The servo commands still go out on USART1.
+// down the camera's y axis, and the ranger kStubTofMm. The Maestro commands are only kept there:
+// the emulated board restarts when its USART1 raises the transmit interrupt (qemu 7.2).
 #include "avr_io.hpp"
 #include "board.hpp"
 #include "rig_drivers/firmware/car_drv.hpp"
@@ -32,8 +33,8 @@ class MegaCarHardware : public rp::CarHardware {
  public:
   MegaCarHardware(rig_avr::Uart& link, rig_avr::Uart& maestro) : link_(link), maestro_(maestro) {}
   void begin() {
-    maestro_.begin(kMaestroBaud);
 #if !RIG_EMULATED_INPUTS
+    maestro_.begin(kMaestroBaud);
     rig_avr::twiBegin();
     const uint8_t wake = 0;  // PWR_MGMT_1 = 0: out of sleep, +-2 g range (16384 LSB/g)
     rig_avr::twiWrite(kMpuAddress, 0x6B, &wake, 1);
@@ -44,7 +45,11 @@ class MegaCarHardware : public rp::CarHardware {
     const uint16_t q = static_cast<uint16_t>(pulse_us * 4 + 0.5);
     const uint8_t cmd[4] = {0x84, axis == rp::GimbalAxis::kPitch ? kMaestroPitch : kMaestroYaw,
                             static_cast<uint8_t>(q & 0x7F), static_cast<uint8_t>((q >> 7) & 0x7F)};
+#if RIG_EMULATED_INPUTS
+    for (int i = 0; i < 4; ++i) last_maestro_[i] = cmd[i];
+#else
     maestro_.write(cmd, sizeof cmd);
+#endif
   }
 #if RIG_EMULATED_INPUTS
   int readAdc(rp::GimbalAxis) override { return kStubAdcCounts; }
@@ -83,6 +88,9 @@ class MegaCarHardware : public rp::CarHardware {
  private:
   rig_avr::Uart& link_;
   rig_avr::Uart& maestro_;
+#if RIG_EMULATED_INPUTS
+  uint8_t last_maestro_[4] = {};
+#endif
 };
 
 MegaCarHardware g_hw(rig_avr::uart0(), rig_avr::uart1());
