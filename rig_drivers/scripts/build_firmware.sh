@@ -40,7 +40,8 @@ LOGIC=(protocol/codec.cpp firmware/firmware.cpp)
 # build <image> <mcu> <board source> <logic source> <emulated 0|1>
 build() {
   local image=$1 mcu=$2 board=$3 logic=$4 emu=$5 objs=() s o
-  for s in "${LOGIC[@]}" "firmware/$logic" "firmware/avr/avr_io.cpp" "firmware/avr/$board"; do
+  for s in "${LOGIC[@]}" "firmware/$logic" firmware/avr/avr_io.cpp firmware/avr/avr_main.cpp \
+           "firmware/avr/$board"; do
     o="$OBJ/$mcu-$emu-$(basename "$s" .cpp).o"
     "${LAUNCHER[@]}" "$CXX" -mmcu="$mcu" "${CXXFLAGS[@]}" -DRIG_EMULATED_INPUTS="$emu" \
       -c "$HERE/src/$s" -o "$o"

@@ -120,7 +120,7 @@ def start_qemu(qemu, elf, sock_path, log):
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     for _ in range(600):
         if proc.poll() is not None:
-            raise RuntimeError("%s exited with %d (see its log)" % (qemu, proc.returncode))
+            raise RuntimeError("%s exited with %d" % (qemu, proc.returncode))
         try:
             sock.connect(sock_path)
             return proc, sock
@@ -212,7 +212,8 @@ def main():
     p.add_argument("--qemu", default="qemu-system-avr")
     p.add_argument("--garbage-bytes", type=int, default=100)
     p.add_argument("--baud", type=int, default=115200, help="pace of the host's bytes to the board")
-    p.add_argument("--log", help="qemu's output (default: a file beside the link)")
+    p.add_argument("--log", help="keep qemu's output in this file (default: shown only when "
+                   "qemu fails)")
     args = p.parse_args(argv)
 
     if args.image:
@@ -222,10 +223,19 @@ def main():
     if not args.elf or not os.path.isfile(args.elf):
         sys.exit("emulated_board.py: no firmware image %s (built by catkin_make, or by "
                  "rig_drivers/scripts/build_firmware.sh <dir>)" % (args.elf or args.image))
-    os.makedirs(os.path.dirname(os.path.abspath(args.link)), exist_ok=True)
+    link_dir = os.path.dirname(os.path.abspath(args.link))
+    made_dir = not os.path.isdir(link_dir)
+    os.makedirs(link_dir, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix="rig_emu_")
-    log = open(args.log or args.link + ".qemu.log", "w")
-    qemu_proc, sock = start_qemu(args.qemu, args.elf, os.path.join(tmp, "link.sock"), log)
+    log_path = args.log or os.path.join(tmp, "qemu.log")
+    log = open(log_path, "w")
+    try:
+        qemu_proc, sock = start_qemu(args.qemu, args.elf, os.path.join(tmp, "link.sock"), log)
+    except RuntimeError as e:
+        log.close()
+        sys.stderr.write(open(log_path).read())
+        shutil.rmtree(tmp, ignore_errors=True)
+        sys.exit("emulated_board.py: %s" % e)
 
     master, slave = os.openpty()
     tty.setraw(master)
@@ -256,6 +266,14 @@ def main():
             qemu_proc.kill()
         if os.path.islink(args.link):
             os.unlink(args.link)
+        if made_dir:
+            try:
+                os.rmdir(link_dir)
+            except OSError:
+                pass
+        log.close()
+        if qemu_proc.returncode not in (0, -signal.SIGTERM, -signal.SIGKILL) and not args.log:
+            sys.stderr.write(open(log_path).read())
         shutil.rmtree(tmp, ignore_errors=True)
     return 0 if stop.is_set() else 1
 

@@ -112,10 +112,3 @@ void boardLoop() {
       g_board, [](uint8_t* buf, size_t max) { return rig_avr::uart0().read(buf, max); },
       rig_avr::micros());
 }
-
-#if !defined(ARDUINO)
-int main() {
-  boardSetup();
-  for (;;) boardLoop();
-}
-#endif

@@ -155,10 +155,3 @@ void boardLoop() {
   g_loop.run(
       g_board, [](uint8_t* buf, size_t max) { return truckLinkRead(buf, max); }, rig_avr::micros());
 }
-
-#if !defined(ARDUINO)
-int main() {
-  boardSetup();
-  for (;;) boardLoop();
-}
-#endif
