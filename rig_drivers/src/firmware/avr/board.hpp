@@ -1,11 +1,11 @@
 #pragma once
 // Entry points of a board adapter (track_board.cpp, car_board.cpp, truck_board.cpp), and the main
-// loop pass they share. The avr-libc images call the entry points from their own main(); the
-// Arduino IDE sketches (TrackDRV.ino, ...) from setup() and loop(), under the Arduino core's
-// main().
+// loop pass they share. The avr-libc images call the entry points from avr_main.cpp; the Arduino
+// IDE sketches (TrackDRV.ino, ...) from setup() and loop(), under the Arduino core's main().
 #include <stddef.h>
 #include <stdint.h>
 
+#include "avr_io.hpp"
 #include "rig_drivers/firmware/firmware.hpp"
 
 /// Checks the board's config (halts blinking the LED when it has a problem), then starts the
@@ -15,6 +15,12 @@ void boardSetup();
 void boardLoop();
 
 namespace rig_avr {
+
+/// Opens the host link at the protocol's baud rate, then starts the board clock.
+inline void startLinkAndClock(Uart& link) {
+  link.begin(rig_drivers::protocol::kBaudRate);
+  clockBegin();
+}
 
 /// Quiet time after which a frame still incomplete is given up. A host writes a frame in one go,
 /// so on the wire its bytes follow each other within microseconds; the emulator hands them over
@@ -26,6 +32,11 @@ constexpr uint32_t kLineIdleUs = 200000;
 /// a command back), then the board's update.
 class LoopPass {
  public:
+  /// The pass with the host link on a USART.
+  void run(rig_drivers::protocol::FirmwareBoard& board, Uart& link) {
+    run(
+        board, [&link](uint8_t* buf, size_t max) { return link.read(buf, max); }, micros());
+  }
   /// `read(buf, max)` returns the bytes received since the last call; `now_us` is micros().
   template <class ReadFn>
   void run(rig_drivers::protocol::FirmwareBoard& board, ReadFn read, uint32_t now_us) {

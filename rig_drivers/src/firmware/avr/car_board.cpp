@@ -103,12 +103,7 @@ rig_avr::LoopPass g_loop;
 void boardSetup() {
   if (g_board.config().problems() != 0) rig_avr::halt(3);
   g_hw.begin();
-  rig_avr::uart0().begin(rp::kBaudRate);
-  rig_avr::clockBegin();
+  rig_avr::startLinkAndClock(rig_avr::uart0());
 }
 
-void boardLoop() {
-  g_loop.run(
-      g_board, [](uint8_t* buf, size_t max) { return rig_avr::uart0().read(buf, max); },
-      rig_avr::micros());
-}
+void boardLoop() { g_loop.run(g_board, rig_avr::uart0()); }

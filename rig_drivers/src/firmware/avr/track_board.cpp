@@ -85,12 +85,7 @@ void boardSetup() {
   if (g_board.config().problems() != 0) rig_avr::halt(3);
   const rp::TrackDrvConfig& c = g_board.config();
   g_hw.begin(static_cast<int32_t>(c.track_length_m / c.metresPerStep() + 0.5));
-  rig_avr::uart0().begin(rp::kBaudRate);
-  rig_avr::clockBegin();
+  rig_avr::startLinkAndClock(rig_avr::uart0());
 }
 
-void boardLoop() {
-  g_loop.run(
-      g_board, [](uint8_t* buf, size_t max) { return rig_avr::uart0().read(buf, max); },
-      rig_avr::micros());
-}
+void boardLoop() { g_loop.run(g_board, rig_avr::uart0()); }
