@@ -55,6 +55,9 @@ PACKAGES=(
   libopen3d-dev libpcl-dev
   # headless rviz screenshots (bags/rviz_screenshot.sh: virtual X server, screen grab, PNG)
   xvfb x11-apps imagemagick
+  # the rig boards' firmware images (rig_drivers/scripts/build_firmware.sh) and the AVR emulator
+  # their tests run them in (qemu-system-avr)
+  gcc-avr avr-libc binutils-avr qemu-system-misc
 )
 
 if [ "$INSTALL" = 1 ]; then

@@ -98,10 +98,11 @@ build() {
   local t=$1 log="$WORK/build_$1.log" harness_flags=() sources=() s
   : >"$log"
   case $t in
-    codec) for s in codec.cpp; do sources+=("$(src $s)") || return 1; done ;;
+    codec) for s in codec.cpp codec_host.cpp; do sources+=("$(src $s)") || return 1; done ;;
     firmware)
       harness_flags=(-fno-sanitize-coverage=trace-cmp)
-      for s in codec.cpp firmware.cpp track_drv.cpp car_drv.cpp truck_drv.cpp; do
+      for s in codec.cpp codec_host.cpp firmware.cpp config_text.cpp track_drv.cpp car_drv.cpp \
+               truck_drv.cpp; do
         sources+=("$(src $s)") || return 1
       done ;;
     *) echo "unknown fuzz target '$t' (codec, firmware)" >>"$log"; return 1 ;;

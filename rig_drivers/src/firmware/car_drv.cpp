@@ -1,8 +1,6 @@
 #include "rig_drivers/firmware/car_drv.hpp"
 
-#include <cmath>
-#include <sstream>
-#include <stdexcept>
+#include <math.h>
 
 namespace rig_drivers {
 namespace protocol {
@@ -24,62 +22,53 @@ CarDrvConfig CarDrvConfig::defaults() {
   return c;
 }
 
-std::string CarDrvConfig::validate() const {
-  std::ostringstream e;
-  auto axis = [&](const char* name, const AxisCalibration& a) {
-    if (!a.pulse_us_of_deg.valid()) e << name << ".pulse_us_of_deg needs >= 2 monotonic points; ";
-    if (!a.deg_of_volts.valid()) e << name << ".deg_of_volts needs >= 2 monotonic points; ";
-    if (!(a.min_deg < a.max_deg)) e << name << ": min_deg must be < max_deg; ";
-    if (a.pulse_us_of_deg.valid()) {
-      // Demands are never extrapolated beyond the calibrated range.
-      if (a.min_deg < a.pulse_us_of_deg.xMin() || a.max_deg > a.pulse_us_of_deg.xMax())
-        e << name << ": demand limits [" << a.min_deg << ", " << a.max_deg
-          << "] deg exceed the calibrated range [" << a.pulse_us_of_deg.xMin() << ", "
-          << a.pulse_us_of_deg.xMax() << "] deg; ";
-      for (int i = 0; i < a.pulse_us_of_deg.size(); ++i) {
-        const double us = a.pulse_us_of_deg.y(i);
-        if (!(us >= 500 && us <= 2500))
-          e << name << ": calibration pulse " << us << " us outside the servo range 500..2500 us; ";
-      }
-    }
-    if (a.deg_of_volts.valid() && (a.deg_of_volts.xMin() < 0 || a.deg_of_volts.xMax() > adc_vref))
-      e << name << ".deg_of_volts volts must lie within 0..adc_vref; ";
-  };
-  axis("pitch", pitch);
-  axis("yaw", yaw);
-  if (!(adc_vref > 0)) e << "adc_vref must be > 0, got " << adc_vref << "; ";
-  if (adc_bits < 8 || adc_bits > 16) e << "adc_bits must be in [8, 16], got " << adc_bits << "; ";
-  if (adc_samples < 1 || adc_samples > 64)
-    e << "adc_samples must be in [1, 64], got " << adc_samples << "; ";
-  if (!(imu_lsb_per_g > 0)) e << "imu_lsb_per_g must be > 0; ";
-  if (tof_sign != 1 && tof_sign != -1) e << "tof_sign must be +1 or -1, got " << tof_sign << "; ";
-  if (!std::isfinite(tof_offset_m)) e << "tof_offset_m must be finite; ";
-  if (!(servo_rate_deg_s > 0)) e << "servo_rate_deg_s must be > 0; ";
-  if (!(settle_s >= 0)) e << "settle_s must be >= 0; ";
-  std::string s = e.str();
-  if (s.size() >= 2) s.resize(s.size() - 2);
-  return s;
+namespace {
+uint32_t axisProblems(const AxisCalibration& a, double adc_vref) {
+  uint32_t p = 0;
+  if (!a.pulse_us_of_deg.valid()) p |= CarDrvConfig::kPulseCurve;
+  if (!a.deg_of_volts.valid()) p |= CarDrvConfig::kVoltsCurve;
+  if (!(a.min_deg < a.max_deg)) p |= CarDrvConfig::kLimitsOrder;
+  if (a.pulse_us_of_deg.valid()) {
+    // Demands are never extrapolated beyond the calibrated range.
+    if (a.min_deg < a.pulse_us_of_deg.xMin() || a.max_deg > a.pulse_us_of_deg.xMax())
+      p |= CarDrvConfig::kLimitsBeyondCurve;
+    for (int i = 0; i < a.pulse_us_of_deg.size(); ++i)
+      if (!CarDrvConfig::pulseInServoRange(a.pulse_us_of_deg.y(i))) p |= CarDrvConfig::kPulseRange;
+  }
+  if (a.deg_of_volts.valid() && (a.deg_of_volts.xMin() < 0 || a.deg_of_volts.xMax() > adc_vref))
+    p |= CarDrvConfig::kVoltsRange;
+  return p;
+}
+}  // namespace
+
+uint32_t CarDrvConfig::problems() const {
+  uint32_t p = axisProblems(pitch, adc_vref) | (axisProblems(yaw, adc_vref) << kYawShift);
+  if (!(adc_vref > 0)) p |= kAdcVref;
+  if (adc_bits < 8 || adc_bits > 16) p |= kAdcBits;
+  if (adc_samples < 1 || adc_samples > 64) p |= kAdcSamples;
+  if (!(imu_lsb_per_g > 0)) p |= kImuScale;
+  if (tof_sign != 1 && tof_sign != -1) p |= kTofSign;
+  if (!isfinite(tof_offset_m)) p |= kTofOffset;
+  if (!(servo_rate_deg_s > 0)) p |= kServoRate;
+  if (!(settle_s >= 0)) p |= kSettle;
+  return p;
 }
 
 namespace {
-const CarDrvConfig& checked(const CarDrvConfig& c) {
-  const std::string err = c.validate();
-  if (!err.empty()) throw std::invalid_argument("CarDrvConfig: " + err);
-  return c;
-}
 int16_t clampI16(double v) {
   if (v > 32767) return 32767;
   if (v < -32768) return -32768;
-  return static_cast<int16_t>(std::lround(v));
+  return static_cast<int16_t>(lround(v));
 }
 }  // namespace
 
 CarDrv::CarDrv(const CarDrvConfig& config, CarHardware& hw)
-    : FirmwareBoard(BoardId::kCar, "CarDRV", hw), config_(checked(config)), hw_(hw) {}
+    : FirmwareBoard(BoardId::kCar, "CarDRV", hw),
+      config_(requireValid(config, "CarDrvConfig")),
+      hw_(hw) {}
 
 double CarDrv::demand(double pitch_deg, double yaw_deg) {
-  const double slew =
-      std::fmax(std::fabs(pitch_deg - dem_deg_[0]), std::fabs(yaw_deg - dem_deg_[1]));
+  const double slew = fmax(fabs(pitch_deg - dem_deg_[0]), fabs(yaw_deg - dem_deg_[1]));
   dem_deg_[0] = pitch_deg;
   dem_deg_[1] = yaw_deg;
   hw_.setServoPulse(GimbalAxis::kPitch, config_.pitch.pulse_us_of_deg(pitch_deg));
@@ -112,7 +101,7 @@ bool CarDrv::handleCommand(const Frame& f) {
     move_pending_ = true;
     move_seq_ = f.seq;
     move_id_ = f.id;
-    move_done_us_ = now_us_ + static_cast<uint64_t>(std::llround(seconds * 1e6));
+    move_done_us_ = now_us_ + static_cast<uint64_t>(seconds * 1e6 + 0.5);  // seconds >= 0
   };
   switch (f.id) {
     case MsgId::kServo: {
@@ -189,7 +178,7 @@ void CarDrv::sendStream() {
     const double pos_mm =
         config_.tof_offset_m * 1e3 + config_.tof_sign * static_cast<double>(range);
     if (pos_mm >= 0 && pos_mm <= 65535) {
-      s.tof_mm = static_cast<uint16_t>(std::lround(pos_mm));
+      s.tof_mm = static_cast<uint16_t>(lround(pos_mm));
       s.flags |= CarSensorsPayload::kTofValid;
     }
   }

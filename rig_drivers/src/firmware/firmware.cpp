@@ -1,6 +1,6 @@
 #include "rig_drivers/firmware/firmware.hpp"
 
-#include <cmath>
+#include <math.h>
 
 namespace rig_drivers {
 namespace protocol {
@@ -13,7 +13,7 @@ bool PiecewiseLinear::set(const double* x, const double* y, int n, bool clamp) {
   if (n < 2 || n > kMaxPoints) return false;
   const bool increasing = y[1] > y[0];
   for (int i = 0; i < n; ++i) {
-    if (!std::isfinite(x[i]) || !std::isfinite(y[i])) return false;
+    if (!isfinite(x[i]) || !isfinite(y[i])) return false;
     if (i > 0) {
       if (!(x[i] > x[i - 1])) return false;
       if (increasing ? !(y[i] > y[i - 1]) : !(y[i] < y[i - 1])) return false;
@@ -109,7 +109,7 @@ ParamValue FirmwareBoard::makeParam(int index, int count, const char* name, doub
   p.count = static_cast<uint8_t>(count);
   double scaled = value;
   for (int i = 0; i < decimals; ++i) scaled *= 10.0;
-  p.mantissa = static_cast<int32_t>(std::lround(scaled));
+  p.mantissa = static_cast<int32_t>(lround(scaled));
   p.exp10 = static_cast<int8_t>(-decimals);
   p.setName(name);
   return p;

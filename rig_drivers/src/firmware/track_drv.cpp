@@ -1,8 +1,6 @@
 #include "rig_drivers/firmware/track_drv.hpp"
 
-#include <cmath>
-#include <sstream>
-#include <stdexcept>
+#include <math.h>
 
 namespace rig_drivers {
 namespace protocol {
@@ -23,38 +21,27 @@ double pulleyMetresPerStep(int teeth) {
   }
 }
 
-std::string TrackDrvConfig::validate() const {
-  std::ostringstream e;
-  if (m_per_step < 0 || !std::isfinite(m_per_step))
-    e << "m_per_step must be >= 0 (0 = from pulley_teeth), got " << m_per_step << "; ";
-  if (m_per_step == 0 && pulleyMetresPerStep(pulley_teeth) == 0)
-    e << "pulley_teeth must be one of table B3 (20, 30, 36, 48), got " << pulley_teeth << "; ";
-  auto positive = [&](const char* name, double v) {
-    if (!(v > 0) || !std::isfinite(v)) e << name << " must be > 0, got " << v << "; ";
+uint32_t TrackDrvConfig::problems() const {
+  uint32_t p = 0;
+  if (m_per_step < 0 || !isfinite(m_per_step)) p |= kBadMPerStep;
+  if (m_per_step == 0 && pulleyMetresPerStep(pulley_teeth) == 0) p |= kUnknownPulley;
+  auto positive = [&p](double v, Problem bit) {
+    if (!(v > 0) || !isfinite(v)) p |= bit;
   };
-  positive("track_length_m", track_length_m);
-  positive("max_speed_mps", max_speed_mps);
-  positive("accel_mps2", accel_mps2);
-  positive("speed_limit_mps", speed_limit_mps);
-  positive("accel_limit_mps2", accel_limit_mps2);
-  positive("home_speed_mps", home_speed_mps);
-  positive("home_accel_mps2", home_accel_mps2);
-  positive("home_search_m", home_search_m);
-  if (max_speed_mps > speed_limit_mps)
-    e << "max_speed_mps (" << max_speed_mps << ") exceeds speed_limit_mps (" << speed_limit_mps
-      << "); ";
-  if (accel_mps2 > accel_limit_mps2)
-    e << "accel_mps2 (" << accel_mps2 << ") exceeds accel_limit_mps2 (" << accel_limit_mps2
-      << "); ";
-  if (home_speed_mps > speed_limit_mps) e << "home_speed_mps exceeds speed_limit_mps; ";
-  if (!(soft_margin_m >= 0) || 2 * soft_margin_m >= track_length_m)
-    e << "soft_margin_m must be in [0, track_length_m / 2), got " << soft_margin_m << "; ";
-  if (home_search_m < track_length_m)
-    e << "home_search_m (" << home_search_m << ") must be >= track_length_m (" << track_length_m
-      << ") so homing can reach the far sensor from anywhere; ";
-  std::string s = e.str();
-  if (s.size() >= 2) s.resize(s.size() - 2);
-  return s;
+  positive(track_length_m, kTrackLength);
+  positive(max_speed_mps, kMaxSpeed);
+  positive(accel_mps2, kAccel);
+  positive(speed_limit_mps, kSpeedLimit);
+  positive(accel_limit_mps2, kAccelLimit);
+  positive(home_speed_mps, kHomeSpeed);
+  positive(home_accel_mps2, kHomeAccel);
+  positive(home_search_m, kHomeSearch);
+  if (max_speed_mps > speed_limit_mps) p |= kSpeedOverLimit;
+  if (accel_mps2 > accel_limit_mps2) p |= kAccelOverLimit;
+  if (home_speed_mps > speed_limit_mps) p |= kHomeOverLimit;
+  if (!(soft_margin_m >= 0) || 2 * soft_margin_m >= track_length_m) p |= kSoftMargin;
+  if (home_search_m < track_length_m) p |= kHomeSearchShort;
+  return p;
 }
 
 // ---- TrapezoidProfile
@@ -64,11 +51,11 @@ void TrapezoidProfile::plan(int32_t start, int32_t target, double vmax, double a
   p0_ = start;
   v0_ = 0;
   dir_ = target >= start ? 1 : -1;
-  distance_ = std::fabs(static_cast<double>(target) - static_cast<double>(start));
+  distance_ = fabs(static_cast<double>(target) - static_cast<double>(start));
   a_ = amax;
   const double d_acc = vmax * vmax / (2 * amax);
   if (2 * d_acc >= distance_) {  // triangular: never reaches vmax
-    v_peak_ = std::sqrt(amax * distance_);
+    v_peak_ = sqrt(amax * distance_);
     t_acc_ = v_peak_ / amax;
     t_cruise_ = 0;
   } else {
@@ -82,7 +69,7 @@ void TrapezoidProfile::plan(int32_t start, int32_t target, double vmax, double a
 void TrapezoidProfile::planStop(double p0, double v0, double amax) {
   p0_ = p0;
   dir_ = v0 >= 0 ? 1 : -1;
-  v0_ = std::fabs(v0);
+  v0_ = fabs(v0);
   a_ = amax;
   v_peak_ = v0_;
   t_acc_ = 0;
@@ -127,20 +114,12 @@ double TrapezoidProfile::velocity(double t) const {
 // ---- TrackDrv
 // ------------------------------------------------------------------------------------------
 
-namespace {
-const TrackDrvConfig& checked(const TrackDrvConfig& c) {
-  const std::string err = c.validate();
-  if (!err.empty()) throw std::invalid_argument("TrackDrvConfig: " + err);
-  return c;
-}
-}  // namespace
-
 TrackDrv::TrackDrv(const TrackDrvConfig& config, TrackHardware& hw)
     : FirmwareBoard(BoardId::kTrack, "TrackDRV", hw),
-      config_(checked(config)),
+      config_(requireValid(config, "TrackDrvConfig")),
       hw_(hw),
       m_per_step_(config.metresPerStep()),
-      track_steps_(static_cast<int32_t>(std::lround(config.track_length_m / m_per_step_))) {}
+      track_steps_(static_cast<int32_t>(lround(config.track_length_m / m_per_step_))) {}
 
 double TrackDrv::velocityMps() const {
   if (motion_ == Motion::kIdle) return 0.0;
@@ -283,8 +262,7 @@ bool TrackDrv::handleCommand(const Frame& f) {
           state_ = TrackStateCode::kHoming;
           motion_ = Motion::kHoming;
           home_travel_steps_ = 0;
-          const int32_t search =
-              static_cast<int32_t>(std::lround(config_.home_search_m / m_per_step_));
+          const int32_t search = static_cast<int32_t>(lround(config_.home_search_m / m_per_step_));
           startProfile(pos_steps_ - search, config_.home_speed_mps / m_per_step_,
                        config_.home_accel_mps2 / m_per_step_);
         }
@@ -315,9 +293,12 @@ bool TrackDrv::handleCommand(const Frame& f) {
       // sequence of 100 x 10 mm lands on 1 m instead of accumulating step rounding.
       const double target_m = (m.flags & CmdTrackMove::kRelative) ? cmd_pos_m_ + m.target_um * 1e-6
                                                                   : m.target_um * 1e-6;
-      const int64_t target = std::llround(target_m / m_per_step_);
-      const int64_t lo = std::llround(config_.soft_margin_m / m_per_step_);
-      const int64_t hi = track_steps_ - lo;
+      // Rounded to steps only once known to lie near the track: a board's long has 32 bits.
+      const double target_steps = target_m / m_per_step_;
+      const int32_t lo = static_cast<int32_t>(lround(config_.soft_margin_m / m_per_step_));
+      const int32_t hi = track_steps_ - lo;
+      const bool near_track = target_steps > lo - 1.0 && target_steps < hi + 1.0;
+      const int32_t target = near_track ? static_cast<int32_t>(lround(target_steps)) : lo - 1;
       if (target < lo || target > hi || v > config_.speed_limit_mps ||
           a > config_.accel_limit_mps2) {
         sendAck(f.seq, f.id, AckStatus::kBadArgument);
@@ -390,8 +371,8 @@ void TrackDrv::sendStream() {
   TrackStatePayload s;
   s.board_time_ms = nowMs();
   s.pos_steps = pos_steps_;
-  s.pos_um = static_cast<int32_t>(std::lround(pos_steps_ * m_per_step_ * 1e6));
-  s.vel_um_s = static_cast<int32_t>(std::lround(velocityMps() * 1e6));
+  s.pos_um = static_cast<int32_t>(lround(pos_steps_ * m_per_step_ * 1e6));
+  s.vel_um_s = static_cast<int32_t>(lround(velocityMps() * 1e6));
   s.state = state_;
   s.flags =
       (hw_.nearSensor() ? TrackStatePayload::kNearSensor : 0) |

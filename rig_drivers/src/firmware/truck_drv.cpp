@@ -1,8 +1,6 @@
 #include "rig_drivers/firmware/truck_drv.hpp"
 
-#include <cmath>
-#include <sstream>
-#include <stdexcept>
+#include <math.h>
 
 namespace rig_drivers {
 namespace protocol {
@@ -15,42 +13,30 @@ TruckDrvConfig TruckDrvConfig::defaults() {
   return c;
 }
 
-std::string TruckDrvConfig::validate() const {
-  std::ostringstream e;
-  if (!(half_range_us > 0)) e << "half_range_us must be > 0, got " << half_range_us << "; ";
-  if (!(deadband_us >= 0 && deadband_us < half_range_us))
-    e << "deadband_us must be in [0, half_range_us), got " << deadband_us << "; ";
-  if (!(min_valid_us < center_us && center_us < max_valid_us))
-    e << "need min_valid_us < center_us < max_valid_us; ";
-  if (!(switch_on_us > min_valid_us && switch_on_us < max_valid_us))
-    e << "switch_on_us must lie between min_valid_us and max_valid_us; ";
+uint32_t TruckDrvConfig::problems() const {
+  uint32_t p = 0;
+  if (!(half_range_us > 0)) p |= kHalfRange;
+  if (!(deadband_us >= 0 && deadband_us < half_range_us)) p |= kDeadband;
+  if (!(min_valid_us < center_us && center_us < max_valid_us)) p |= kValidRange;
+  if (!(switch_on_us > min_valid_us && switch_on_us < max_valid_us)) p |= kSwitchOn;
   if (!speed_curve.valid()) {
-    e << "speed_curve needs >= 2 points with increasing signal and speed; ";
+    p |= kSpeedCurve;
   } else {
-    if (speed_curve.xMin() < 0 || speed_curve.xMax() > 1.0 + 1e-9)
-      e << "speed_curve signal values must lie in [0, 1]; ";
-    if (speed_curve.y(0) < 0) e << "speed_curve speeds must be >= 0; ";
+    if (speed_curve.xMin() < 0 || speed_curve.xMax() > 1.0 + 1e-9) p |= kSpeedCurveSignal;
+    if (speed_curve.y(0) < 0) p |= kSpeedCurveNegative;
   }
-  std::string s = e.str();
-  if (s.size() >= 2) s.resize(s.size() - 2);
-  return s;
+  return p;
 }
-
-namespace {
-const TruckDrvConfig& checked(const TruckDrvConfig& c) {
-  const std::string err = c.validate();
-  if (!err.empty()) throw std::invalid_argument("TruckDrvConfig: " + err);
-  return c;
-}
-}  // namespace
 
 TruckDrv::TruckDrv(const TruckDrvConfig& config, TruckHardware& hw)
-    : FirmwareBoard(BoardId::kTruck, "TruckDRV", hw), config_(checked(config)), hw_(hw) {}
+    : FirmwareBoard(BoardId::kTruck, "TruckDRV", hw),
+      config_(requireValid(config, "TruckDrvConfig")),
+      hw_(hw) {}
 
 double TruckDrv::normalise(uint16_t pulse_us, bool reversed) const {
   if (!valid(pulse_us)) return 0.0;
   double d = pulse_us - config_.center_us;
-  if (std::fabs(d) <= config_.deadband_us) return 0.0;
+  if (fabs(d) <= config_.deadband_us) return 0.0;
   // Rescale so the output is continuous at the deadband edge and reaches 1 at full deflection.
   d = (d > 0 ? d - config_.deadband_us : d + config_.deadband_us) /
       (config_.half_range_us - config_.deadband_us);
@@ -60,7 +46,7 @@ double TruckDrv::normalise(uint16_t pulse_us, bool reversed) const {
 }
 
 double TruckDrv::speedMps(double signal) const {
-  const double m = std::fabs(signal);
+  const double m = fabs(signal);
   if (m < config_.speed_curve.xMin()) return 0.0;
   const double v = config_.speed_curve(m);
   return signal < 0 ? -v : v;
@@ -109,9 +95,9 @@ void TruckDrv::sendStream() {
   s.ch3_us = pulse_[1];
   s.ch5_us = pulse_[2];
   s.ch7_us = pulse_[3];
-  s.steering_permille = static_cast<int16_t>(std::lround(steering_ * 1000));
-  s.speed_permille = static_cast<int16_t>(std::lround(speed_ * 1000));
-  s.speed_mm_s = static_cast<int16_t>(std::lround(speedMps(motor_) * 1000));
+  s.steering_permille = static_cast<int16_t>(lround(steering_ * 1000));
+  s.speed_permille = static_cast<int16_t>(lround(speed_ * 1000));
+  s.speed_mm_s = static_cast<int16_t>(lround(speedMps(motor_) * 1000));
   s.flags = (running_ ? TruckRcPayload::kRunning : 0) |
             (recording_ ? TruckRcPayload::kRecording : 0) |
             (signal_ok_ ? TruckRcPayload::kSignalOk : 0);
@@ -135,7 +121,7 @@ ParamValue TruckDrv::param(int i) const {
       // speed curve points: name carries the signal, value the speed
       const int k = i - 4;
       char name[kNameLen + 1] = "speed_mps_at_";
-      const int permille = static_cast<int>(std::lround(config_.speed_curve.x(k) * 1000));
+      const int permille = static_cast<int>(lround(config_.speed_curve.x(k) * 1000));
       name[13] = static_cast<char>('0' + (permille / 1000) % 10);
       name[14] = static_cast<char>('0' + (permille / 100) % 10);
       name[15] = static_cast<char>('0' + (permille / 10) % 10);

@@ -1,4 +1,8 @@
+// Board part of the codec: builds for the boards (avr-libc only) and for the host. The host's
+// names and std::vector conveniences are in codec_host.cpp.
 #include "rig_drivers/protocol/codec.hpp"
+
+#include <string.h>
 
 namespace rig_drivers {
 namespace protocol {
@@ -33,104 +37,6 @@ bool isKnownMsgId(uint8_t id) {
 
 bool isKnownBoard(uint8_t b) { return b <= static_cast<uint8_t>(BoardId::kTruck); }
 
-const char* msgName(MsgId id) {
-  switch (id) {
-    case MsgId::kInit:
-      return "init";
-    case MsgId::kMode:
-      return "mode";
-    case MsgId::kStart:
-      return "start";
-    case MsgId::kStop:
-      return "stop";
-    case MsgId::kReset:
-      return "reset";
-    case MsgId::kEnd:
-      return "end";
-    case MsgId::kVers:
-      return "vers";
-    case MsgId::kPara:
-      return "para";
-    case MsgId::kTrackMove:
-      return "TrackMove";
-    case MsgId::kServo:
-      return "Servo";
-    case MsgId::kPing:
-      return "Ping";
-    case MsgId::kWait:
-      return "Wait";
-    case MsgId::kAck:
-      return "Ack";
-    case MsgId::kTrackState:
-      return "TrackState";
-    case MsgId::kCarSensors:
-      return "CarSensors";
-    case MsgId::kTruckRc:
-      return "TruckRc";
-    case MsgId::kVersionInfo:
-      return "VersionInfo";
-    case MsgId::kParamValue:
-      return "ParamValue";
-    case MsgId::kPong:
-      return "Pong";
-  }
-  return "unknown";
-}
-
-const char* errorName(DecodeError e) {
-  switch (e) {
-    case DecodeError::kNone:
-      return "no error";
-    case DecodeError::kBadCrc:
-      return "bad CRC";
-    case DecodeError::kBadLength:
-      return "bad length (payload longer than 64 bytes)";
-    case DecodeError::kVersionMismatch:
-      return "protocol version mismatch";
-    case DecodeError::kUnknownMessage:
-      return "unknown message id";
-    case DecodeError::kUnknownBoard:
-      return "unknown board id";
-    case DecodeError::kTruncated:
-      return "truncated frame";
-    case DecodeError::kWrongMessage:
-      return "wrong message id for this payload type";
-    case DecodeError::kPayloadSize:
-      return "payload size does not match the message";
-    case DecodeError::kBadValue:
-      return "payload field out of range";
-    case DecodeError::kBufferTooSmall:
-      return "output buffer too small";
-  }
-  return "unknown error";
-}
-
-const char* ackStatusName(AckStatus s) {
-  switch (s) {
-    case AckStatus::kAccepted:
-      return "accepted";
-    case AckStatus::kDone:
-      return "done";
-    case AckStatus::kBusy:
-      return "busy";
-    case AckStatus::kNotReady:
-      return "not ready (not initialised or wrong mode)";
-    case AckStatus::kBadArgument:
-      return "bad argument";
-    case AckStatus::kUnsupported:
-      return "unsupported on this board";
-    case AckStatus::kEStop:
-      return "emergency stop";
-    case AckStatus::kEndOfTrack:
-      return "end of track";
-    case AckStatus::kFailed:
-      return "failed";
-    case AckStatus::kAborted:
-      return "aborted";
-  }
-  return "unknown status";
-}
-
 uint16_t crc16(const uint8_t* data, size_t n, uint16_t crc) {
   for (size_t i = 0; i < n; ++i) {
     crc ^= static_cast<uint16_t>(data[i]) << 8;
@@ -155,7 +61,7 @@ size_t encodeFrame(BoardId board, MsgId id, uint32_t seq, const uint8_t* payload
   putU8(p, static_cast<uint8_t>(board));
   putU8(p, static_cast<uint8_t>(id));
   putU32(p, seq);
-  if (payload_len > 0) std::memcpy(p, payload, payload_len);
+  if (payload_len > 0) memcpy(p, payload, payload_len);
   p += payload_len;
   putU16(p, crc16(out + 2, kHeaderSize - 2 + payload_len));
   return total;
@@ -401,7 +307,7 @@ void StreamDecoder::drop(size_t n) {
     len_ = 0;
     return;
   }
-  std::memmove(buf_, buf_ + n, len_ - n);
+  memmove(buf_, buf_ + n, len_ - n);
   len_ -= n;
 }
 
@@ -471,13 +377,22 @@ void StreamDecoder::process(FrameSink& sink) {
     const uint8_t* p = buf_ + 6;
     frame_.seq = getU32(p);
     frame_.length = static_cast<uint8_t>(plen);
-    std::memcpy(frame_.payload, buf_ + kHeaderSize, plen);
-    std::memset(frame_.payload + plen, 0, kMaxPayload - plen);
+    memcpy(frame_.payload, buf_ + kHeaderSize, plen);
+    memset(frame_.payload + plen, 0, kMaxPayload - plen);
     ++stats_.frames;
     drop(total);
     sink.onFrame(frame_);
   }
   flushGarbage();
+}
+
+void StreamDecoder::expire(FrameSink& sink) {
+  while (len_ > 0) {
+    ++stats_.truncated;
+    drop(1);
+    sink.onError(DecodeError::kTruncated, 1);
+    process(sink);
+  }
 }
 
 void StreamDecoder::flush(FrameSink& sink) {
@@ -487,52 +402,6 @@ void StreamDecoder::flush(FrameSink& sink) {
   ++stats_.truncated;
   sink.onError(DecodeError::kTruncated, n);
 }
-
-#if !defined(ARDUINO)
-// ---- host conveniences
-// ---------------------------------------------------------------------------------
-
-namespace {
-class CollectSink : public FrameSink {
- public:
-  explicit CollectSink(std::vector<DecodeEvent>& out) : out_(out) {}
-  void onFrame(const Frame& f) override {
-    DecodeEvent e;
-    e.frame = f;
-    out_.push_back(e);
-  }
-  void onError(DecodeError error, size_t discarded) override {
-    DecodeEvent e;
-    e.error = error;
-    e.discarded = discarded;
-    out_.push_back(e);
-  }
-
- private:
-  std::vector<DecodeEvent>& out_;
-};
-}  // namespace
-
-std::vector<DecodeEvent> feed(StreamDecoder& decoder, const uint8_t* data, size_t n) {
-  std::vector<DecodeEvent> events;
-  CollectSink sink(events);
-  decoder.feed(data, n, sink);
-  return events;
-}
-
-std::vector<uint8_t> encodeCommand(BoardId board, MsgId id, uint32_t seq) {
-  std::vector<uint8_t> out(kMaxFrameSize);
-  out.resize(encodeCommand(board, id, seq, out.data(), out.size()));
-  return out;
-}
-
-std::vector<uint8_t> frameBytes(const Frame& f) {
-  std::vector<uint8_t> out(kMaxFrameSize);
-  out.resize(encodeFrame(f.board, f.id, f.seq, f.payload, f.length, out.data(), out.size()));
-  return out;
-}
-
-#endif  // !ARDUINO
 
 }  // namespace protocol
 }  // namespace rig_drivers

@@ -139,6 +139,30 @@ TEST(TrackDrvConfig, PulleyTableAndValidation) {
   EXPECT_THROW(rp::TrackDrv(c, hw), std::invalid_argument);
 }
 
+TEST(TrackDrvConfig, ProblemsNameEachBadFieldByItsBit) {
+  // problems() is what a board checks; validate() words the same bits on the host.
+  using C = rp::TrackDrvConfig;
+  EXPECT_EQ(C().problems(), 0u);
+  const struct {
+    void (*spoil)(C&);
+    uint32_t bit;
+    const char* text;
+  } cases[] = {
+      {[](C& c) { c.m_per_step = -1; }, C::kBadMPerStep, "m_per_step"},
+      {[](C& c) { c.pulley_teeth = 25; }, C::kUnknownPulley, "pulley_teeth"},
+      {[](C& c) { c.accel_mps2 = 0; }, C::kAccel, "accel_mps2 must be > 0"},
+      {[](C& c) { c.max_speed_mps = 0.35; }, C::kSpeedOverLimit, "exceeds speed_limit_mps"},
+      {[](C& c) { c.soft_margin_m = 0.7; }, C::kSoftMargin, "soft_margin_m"},
+      {[](C& c) { c.home_search_m = 1.0; }, C::kHomeSearchShort, "home_search_m (1)"},
+  };
+  for (const auto& k : cases) {
+    C c;
+    k.spoil(c);
+    EXPECT_EQ(c.problems(), k.bit) << k.text;
+    EXPECT_NE(c.validate().find(k.text), std::string::npos) << c.validate();
+  }
+}
+
 TEST(TrackDrv, HomesToFarSensorOnInit) {
   Rig rig;
   rig.hw.start_m = 0.37;  // carriage somewhere on the track at power-up
@@ -387,6 +411,20 @@ TEST(TrackDrv, RejectsWhileBusyAndUnsupported) {
   const auto other = rp::encodeCommand(rp::BoardId::kCar, MsgId::kStop, 6);
   rig.drv.receive(other.data(), other.size());
   EXPECT_TRUE(rig.hw.out.acksFor(6).empty());
+}
+
+TEST(TrackDrv, CommandBehindAFalseFrameStartIsHandledWhenTheLineGoesIdle) {
+  Rig rig;
+  const auto vers = rp::encodeCommand(rp::BoardId::kTrack, MsgId::kVers, 9);
+  std::vector<uint8_t> bytes = {rp::kSync0, rp::kSync1, 50, rp::kProtocolVersion, 1};
+  bytes.insert(bytes.end(), vers.begin(), vers.end());
+  rig.drv.receive(bytes.data(), bytes.size());
+  EXPECT_TRUE(rig.hw.out.acksFor(9).empty());  // held by the false start's 50-byte payload
+  EXPECT_GT(rig.drv.rxPending(), 0u);
+  rig.drv.lineIdle();
+  EXPECT_EQ(rig.hw.out.lastStatus(9), st(AckStatus::kDone));
+  EXPECT_EQ(rig.hw.out.all<rp::VersionInfo>().size(), 1u);
+  EXPECT_EQ(rig.drv.rxPending(), 0u);
 }
 
 TEST(TrackDrv, StreamsAt30HzWithVersAndPara) {

@@ -586,6 +586,33 @@ TEST(Codec, TruncatedAtEndIsReportedOnFlush) {
   EXPECT_EQ(dec.pending(), 0u);
 }
 
+TEST(Codec, ExpireGivesUpAFalseStartAndDeliversTheFrameBehindIt) {
+  // Garbage ending in a plausible frame start (sync, length 60) swallows the frame that follows
+  // while the decoder waits for 60 payload bytes; once the line is quiet, expire() rescans.
+  const auto a = trackStateFrame(7, 100);
+  std::vector<uint8_t> bytes = {0x13, 0x37, rp::kSync0, rp::kSync1, 60, rp::kProtocolVersion};
+  bytes.insert(bytes.end(), a.begin(), a.end());
+  rp::StreamDecoder dec;
+  EXPECT_TRUE(framesOf(rp::feed(dec, bytes)).empty());
+  EXPECT_EQ(dec.pending(), bytes.size() - 2);
+  std::vector<rp::Frame> frames;
+  size_t truncated = 0;
+  struct Sink : rp::FrameSink {
+    std::vector<rp::Frame>* frames;
+    size_t* truncated;
+    void onFrame(const rp::Frame& f) override { frames->push_back(f); }
+    void onError(DecodeError e, size_t) override { *truncated += e == DecodeError::kTruncated; }
+  } sink;
+  sink.frames = &frames;
+  sink.truncated = &truncated;
+  dec.expire(sink);
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_EQ(frames[0].seq, 7u);
+  EXPECT_EQ(truncated, 1u);  // the one false start
+  EXPECT_EQ(dec.pending(), 0u);
+  EXPECT_EQ(dec.stats().truncated, 1u);
+}
+
 TEST(Codec, SplitFramesByteByByteAndRandomChunks) {
   std::vector<uint8_t> bytes;
   for (uint32_t i = 0; i < 50; ++i) {

@@ -5,8 +5,7 @@
 // through the sensor calibration (volts -> deg); the MPU6050 gives accelerations in g and the
 // time-of-flight sensor the carriage position TFPos. Streams CarSensors at 30 Hz.
 
-#include <cstdint>
-#include <string>
+#include <stdint.h>
 
 #include "rig_drivers/firmware/firmware.hpp"
 
@@ -36,7 +35,34 @@ struct CarDrvConfig {
   /// Defaults: curves shaped like thesis figs. B2/B3 (the text does not give their numbers;
   /// load the rig's own calibration from config/ for real hardware).
   static CarDrvConfig defaults();
+
+  /// What problems() reports, one bit each. The per-axis bits are the pitch axis's; the yaw
+  /// axis's are the same bits shifted left by kYawShift.
+  enum Problem : uint32_t {
+    kPulseCurve = 1ul << 0,         ///< pulse_us_of_deg has fewer than 2 monotonic points
+    kVoltsCurve = 1ul << 1,         ///< deg_of_volts has fewer than 2 monotonic points
+    kLimitsOrder = 1ul << 2,        ///< min_deg not < max_deg
+    kLimitsBeyondCurve = 1ul << 3,  ///< demand limits outside the calibrated range
+    kPulseRange = 1ul << 4,         ///< a calibration pulse outside the servo range
+    kVoltsRange = 1ul << 5,         ///< a calibration voltage outside 0 .. adc_vref
+    kAdcVref = 1ul << 12,           ///< adc_vref not > 0
+    kAdcBits = 1ul << 13,           ///< adc_bits not in [8, 16]
+    kAdcSamples = 1ul << 14,        ///< adc_samples not in [1, 64]
+    kImuScale = 1ul << 15,          ///< imu_lsb_per_g not > 0
+    kTofSign = 1ul << 16,           ///< tof_sign not +1 or -1
+    kTofOffset = 1ul << 17,         ///< tof_offset_m not finite
+    kServoRate = 1ul << 18,         ///< servo_rate_deg_s not > 0
+    kSettle = 1ul << 19,            ///< settle_s not >= 0
+  };
+  static constexpr int kYawShift = 6;
+  /// Pulse widths a hobby servo accepts (us).
+  static bool pulseInServoRange(double us) { return us >= 500 && us <= 2500; }
+  /// Every problem at once as Problem bits, 0 when valid. Runs on the board.
+  uint32_t problems() const;
+#if RIG_DRIVERS_HOST
+  /// Every problem at once as text, "" when valid (host only, config_text.cpp).
   std::string validate() const;
+#endif
 };
 
 enum class GimbalAxis : int { kPitch = 0, kYaw = 1 };
@@ -60,7 +86,7 @@ class CarHardware : public SerialOut {
 /// before the previous move's "done" is answered "busy".
 class CarDrv : public FirmwareBoard {
  public:
-  /// Throws std::invalid_argument naming every bad field.
+  /// On the host, throws std::invalid_argument naming every bad field of an invalid config.
   CarDrv(const CarDrvConfig& config, CarHardware& hw);
 
   double pitchDemandDeg() const { return dem_deg_[0]; }

@@ -3,15 +3,25 @@
 // board (decoding host commands, numbering its frames, acknowledging commands, vers/para/ping/wait,
 // the 30 Hz frame clock) and the piecewise-linear calibration curve of appendix B.
 //
-// Nothing here includes Arduino headers: a sketch (.ino) owns a hardware adapter and calls
+// Nothing here includes Arduino headers or the C++ standard library: a board's hardware adapter
+// (src/firmware/avr/ for avr-libc builds, the .ino sketches for the Arduino IDE) calls
 //   board.receive(bytes, n);  board.update(micros());
-// from loop(). The host simulator and the tests do exactly the same with an injected clock, so one
-// code path runs on the bench and in simulation. Not thread-safe: one thread drives a board.
+// from its loop. The host simulator and the tests do exactly the same with an injected clock, so
+// one code path runs on the bench and in simulation. Not thread-safe: one thread drives a board.
+//
+// Board configs are checked by problems() (one bit per problem, 0 when valid), which runs on the
+// board; the host's validate() turns the bits into text (config_text.cpp), and on the host a
+// board's constructor throws std::invalid_argument naming every problem of its config.
 
-#include <cstddef>
-#include <cstdint>
+#include <stddef.h>
+#include <stdint.h>
 
 #include "rig_drivers/protocol/codec.hpp"
+
+#if RIG_DRIVERS_HOST
+#include <stdexcept>
+#include <string>
+#endif
 
 namespace rig_drivers {
 namespace protocol {
@@ -97,6 +107,22 @@ class FrameClock {
   uint64_t frame_ = 0;
 };
 
+#if RIG_DRIVERS_HOST
+/// `config` itself when its problems() are 0; else throws std::invalid_argument("<what>: <every
+/// problem>") (host only: a board's adapter checks problems() before it starts the board).
+template <class Config>
+const Config& requireValid(const Config& config, const char* what) {
+  if (config.problems() != 0)
+    throw std::invalid_argument(std::string(what) + ": " + config.validate());
+  return config;
+}
+#else
+template <class Config>
+const Config& requireValid(const Config& config, const char*) {
+  return config;
+}
+#endif
+
 /// Version of the firmware logic in this library (reported by vers).
 constexpr uint8_t kFirmwareMajor = 1;
 constexpr uint8_t kFirmwareMinor = 0;
@@ -113,6 +139,11 @@ class FirmwareBoard : public FrameSink {
 
   /// Feeds bytes received on the serial port; commands are handled at once.
   void receive(const uint8_t* data, size_t n);
+  /// The host's line has been quiet for a while (the adapter's judgement): a frame still pending
+  /// can never complete; complete commands buffered behind a false frame start are handled now.
+  void lineIdle() { decoder_.expire(*this); }
+  /// Received bytes of a frame not yet complete.
+  size_t rxPending() const { return decoder_.pending(); }
   /// Runs the board's control logic at raw microsecond counter `now_us` (call often: every loop()).
   void update(uint32_t now_us);
 

@@ -7,8 +7,7 @@
 // Track axis: position 0 is the far proximity sensor (the homing reference); positive positions go
 // towards the near end. The hardware adapter turns step(+1/-1) into a direction pin + step pulse.
 
-#include <cstdint>
-#include <string>
+#include <stdint.h>
 
 #include "rig_drivers/firmware/firmware.hpp"
 
@@ -37,8 +36,30 @@ struct TrackDrvConfig {
   double metresPerStep() const {
     return m_per_step > 0 ? m_per_step : pulleyMetresPerStep(pulley_teeth);
   }
-  /// Every problem at once, "" when valid.
+  /// What problems() reports, one bit each.
+  enum Problem : uint32_t {
+    kBadMPerStep = 1ul << 0,       ///< m_per_step < 0 or not finite
+    kUnknownPulley = 1ul << 1,     ///< m_per_step == 0 and pulley_teeth not in table B3
+    kTrackLength = 1ul << 2,       ///< track_length_m not > 0
+    kMaxSpeed = 1ul << 3,          ///< max_speed_mps not > 0
+    kAccel = 1ul << 4,             ///< accel_mps2 not > 0
+    kSpeedLimit = 1ul << 5,        ///< speed_limit_mps not > 0
+    kAccelLimit = 1ul << 6,        ///< accel_limit_mps2 not > 0
+    kHomeSpeed = 1ul << 7,         ///< home_speed_mps not > 0
+    kHomeAccel = 1ul << 8,         ///< home_accel_mps2 not > 0
+    kHomeSearch = 1ul << 9,        ///< home_search_m not > 0
+    kSpeedOverLimit = 1ul << 10,   ///< max_speed_mps > speed_limit_mps
+    kAccelOverLimit = 1ul << 11,   ///< accel_mps2 > accel_limit_mps2
+    kHomeOverLimit = 1ul << 12,    ///< home_speed_mps > speed_limit_mps
+    kSoftMargin = 1ul << 13,       ///< soft_margin_m not in [0, track_length_m / 2)
+    kHomeSearchShort = 1ul << 14,  ///< home_search_m < track_length_m
+  };
+  /// Every problem at once as Problem bits, 0 when valid. Runs on the board.
+  uint32_t problems() const;
+#if RIG_DRIVERS_HOST
+  /// Every problem at once as text, "" when valid (host only, config_text.cpp).
   std::string validate() const;
+#endif
 };
 
 /// Hardware of the track electronics module.
@@ -78,7 +99,8 @@ class TrapezoidProfile {
 
 class TrackDrv : public FirmwareBoard {
  public:
-  /// Throws std::invalid_argument naming every bad field when the config is invalid (host only).
+  /// On the host, throws std::invalid_argument naming every bad field of an invalid config; a
+  /// board's adapter checks config.problems() before it constructs the board.
   TrackDrv(const TrackDrvConfig& config, TrackHardware& hw);
 
   TrackStateCode state() const { return state_; }

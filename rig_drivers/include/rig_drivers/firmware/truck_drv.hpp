@@ -4,8 +4,7 @@
 // motor amplifier and steering, and streams the channels at 30 Hz with a forward speed estimate
 // from the speed calibration of fig. 5.42 (a configurable curve).
 
-#include <cstdint>
-#include <string>
+#include <stdint.h>
 
 #include "rig_drivers/firmware/firmware.hpp"
 
@@ -29,7 +28,23 @@ struct TruckDrvConfig {
   PiecewiseLinear speed_curve;
 
   static TruckDrvConfig defaults();
+
+  /// What problems() reports, one bit each.
+  enum Problem : uint32_t {
+    kHalfRange = 1ul << 0,           ///< half_range_us not > 0
+    kDeadband = 1ul << 1,            ///< deadband_us not in [0, half_range_us)
+    kValidRange = 1ul << 2,          ///< not min_valid_us < center_us < max_valid_us
+    kSwitchOn = 1ul << 3,            ///< switch_on_us not between min_valid_us and max_valid_us
+    kSpeedCurve = 1ul << 4,          ///< speed_curve has fewer than 2 increasing points
+    kSpeedCurveSignal = 1ul << 5,    ///< speed_curve signal values outside [0, 1]
+    kSpeedCurveNegative = 1ul << 6,  ///< speed_curve speeds below 0
+  };
+  /// Every problem at once as Problem bits, 0 when valid. Runs on the board.
+  uint32_t problems() const;
+#if RIG_DRIVERS_HOST
+  /// Every problem at once as text, "" when valid (host only, config_text.cpp).
   std::string validate() const;
+#endif
 };
 
 class TruckHardware : public SerialOut {
@@ -44,7 +59,7 @@ class TruckHardware : public SerialOut {
 
 class TruckDrv : public FirmwareBoard {
  public:
-  /// Throws std::invalid_argument naming every bad field.
+  /// On the host, throws std::invalid_argument naming every bad field of an invalid config.
   TruckDrv(const TruckDrvConfig& config, TruckHardware& hw);
 
   /// Stick position of a proportional channel pulse, -1..1 with the deadband applied.
@@ -55,6 +70,7 @@ class TruckDrv : public FirmwareBoard {
   bool recording() const { return recording_; }
   bool signalOk() const { return signal_ok_; }
   double motorCommand() const { return motor_; }
+  const TruckDrvConfig& config() const { return config_; }
 
  protected:
   bool handleCommand(const Frame& f) override;

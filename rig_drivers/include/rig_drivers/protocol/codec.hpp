@@ -19,14 +19,23 @@
 // payload (status kAccepted on receipt, kDone when a mode 2 step has completed). Board frames carry
 // the board's own frame counter in seq, so the host can count lost frames.
 //
-// The header uses only <cstdint>/<cstddef>/<cstring> in the firmware part so the same code runs in
-// the Arduino sketches; the host conveniences (std::vector) at the end are left out when ARDUINO
-// is defined.
+// The board part uses only what avr-libc has (<stddef.h>, <stdint.h>), so the same code builds
+// freestanding for the boards (no C++ standard library, no exceptions, no heap). The host part
+// (names for log lines, std::vector conveniences) exists only where RIG_DRIVERS_HOST is 1.
 
-#include <cstddef>
-#include <cstdint>
-#include <cstring>
-#if !defined(ARDUINO)
+#include <stddef.h>
+#include <stdint.h>
+
+// 1 in host builds (nodes, simulator, tests), 0 on a board: avr-gcc, or the Arduino IDE.
+#if !defined(RIG_DRIVERS_HOST)
+#if defined(ARDUINO) || defined(__AVR__)
+#define RIG_DRIVERS_HOST 0
+#else
+#define RIG_DRIVERS_HOST 1
+#endif
+#endif
+
+#if RIG_DRIVERS_HOST
 #include <vector>
 #endif
 
@@ -75,8 +84,6 @@ enum class MsgId : uint8_t {
 bool isKnownMsgId(uint8_t id);
 /// True if `b` is one of the BoardId values above.
 bool isKnownBoard(uint8_t b);
-/// Short name of a message id ("TrackState", ...), "unknown" otherwise.
-const char* msgName(MsgId id);
 
 /// Typed results of decoding; kNone means success.
 enum class DecodeError : uint8_t {
@@ -92,9 +99,6 @@ enum class DecodeError : uint8_t {
   kBadValue,         ///< a payload field is out of its valid range (e.g. mode 3)
   kBufferTooSmall,   ///< encode: output buffer too small
 };
-
-/// Human readable name of an error ("bad CRC", ...).
-const char* errorName(DecodeError e);
 
 /// CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection); check("123456789") = 0x29B1.
 uint16_t crc16(const uint8_t* data, size_t n, uint16_t crc = 0xFFFF);
@@ -114,8 +118,7 @@ struct Frame {
 size_t encodeFrame(BoardId board, MsgId id, uint32_t seq, const uint8_t* payload,
                    size_t payload_len, uint8_t* out, size_t cap);
 
-// ---- little-endian field helpers used by the payload structs
-// -------------------------------------
+// ---- little-endian field helpers used by the payload structs ------------------------------------
 namespace wire {
 inline void putU8(uint8_t*& p, uint8_t v) { *p++ = v; }
 inline void putU16(uint8_t*& p, uint16_t v) {
@@ -216,8 +219,6 @@ enum class AckStatus : uint8_t {
   kAborted = 9,      ///< aborted by stop/reset, or superseded by a newer mode 1 demand
 };
 constexpr uint8_t kMaxAckStatus = 9;
-/// Name of an ack status ("done", "busy", ...).
-const char* ackStatusName(AckStatus s);
 
 struct Ack {
   static constexpr MsgId kId = MsgId::kAck;
@@ -385,6 +386,11 @@ class StreamDecoder {
   void feed(const uint8_t* data, size_t n, FrameSink& sink);
   /// Reports kTruncated if a partial frame is pending (e.g. the port closed) and clears it.
   void flush(FrameSink& sink);
+  /// The line has gone quiet, so a pending candidate can never complete (garbage that looked like
+  /// a frame start, with a length reaching past what arrived). Gives up candidate starts one byte
+  /// at a time (each reported as kTruncated) and rescans, so every complete frame still buffered
+  /// is delivered. Leaves nothing pending.
+  void expire(FrameSink& sink);
   /// Drops any partial frame without reporting (e.g. after reopening a port).
   void reset() { len_ = 0; }
   /// Bytes of a partial frame currently buffered.
@@ -401,9 +407,15 @@ class StreamDecoder {
   Frame frame_;
 };
 
-#if !defined(ARDUINO)
-// ---- host conveniences (heap)
-// -----------------------------------------------------------------------
+#if RIG_DRIVERS_HOST
+// ---- host conveniences (codec_host.cpp) ---------------------------------------------------------
+
+/// Short name of a message id ("TrackState", ...), "unknown" otherwise.
+const char* msgName(MsgId id);
+/// Human readable name of an error ("bad CRC", ...).
+const char* errorName(DecodeError e);
+/// Name of an ack status ("done", "busy", ...).
+const char* ackStatusName(AckStatus s);
 
 /// One decoder output: error == kNone means `frame` is valid.
 struct DecodeEvent {
@@ -430,7 +442,7 @@ std::vector<uint8_t> encodeCommand(BoardId board, MsgId id, uint32_t seq);
 /// The frame re-encoded exactly as it was on the wire (for rig_msgs/RawFrame recording).
 std::vector<uint8_t> frameBytes(const Frame& f);
 
-#endif  // !ARDUINO
+#endif  // RIG_DRIVERS_HOST
 
 }  // namespace protocol
 }  // namespace rig_drivers
