@@ -135,18 +135,20 @@ class BoardHost {
   /// an error. The summary names the port and what the link tried.
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& d) {
     using S = diagnostic_msgs::DiagnosticStatus;
+    // The link's own state first: its lock is never held together with diag_mutex_.
+    const bool connected = link_ && link_->connected();
+    const auto st = link_ ? link_->decoderStats() : protocol::DecoderStats{};
     std::lock_guard<std::mutex> l(diag_mutex_);
     const std::string& port = config_.serial.device;
-    if (link_ && link_->connected()) {
+    if (connected) {
       d.summary(S::OK, last_event_);
     } else if (!ever_connected_) {
       d.summary(S::WARN, "waiting for " + port + (last_event_.empty() ? "" : ": " + last_event_));
     } else {
       d.summary(S::ERROR, "waiting for " + port + " to come back: " + last_event_);
     }
-    const auto st = link_ ? link_->decoderStats() : protocol::DecoderStats{};
     d.add("port", port);
-    d.add("connected", link_ && link_->connected());
+    d.add("connected", connected);
     d.add("link drops", drops_);
     d.add("frames", st.frames);
     d.add("bad CRC", st.bad_crc);
