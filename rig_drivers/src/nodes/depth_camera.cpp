@@ -6,7 +6,8 @@
 //         (~noise_model_file: camera_check's YAML)
 //   tum   plays a recorded sequence folder at its timestamps: the TUM RGB-D layout (depth.txt +
 //         16-bit PNGs) or the 7-Scenes layout (frame-*.depth.png), depth_track's readDepthSequence
-// Continuous at ~rate_hz, or with ~triggered one frame per ~trigger call (mode 2 sequencer).
+// Continuous (each source at its own pace, see ~rate_hz), or with ~triggered one frame per
+// ~trigger call (mode 2 sequencer).
 // Every backend sits behind CameraLink (rig_camera): a missing device is waited for, a lost one
 // reopened, and the frames missing across a gap are counted; diagnostics say which.
 // Parameters: config/drivers.yaml.
